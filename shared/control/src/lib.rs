@@ -1,0 +1,51 @@
+//! The controllers of the papers, each a discrete-time object that
+//! allocates nothing per step, can be reset, and can be initialized from a
+//! given output so that a switch between variants is bumpless. No IPC here:
+//! the processes wire these to shared memory; the offline simulator calls
+//! them directly.
+
+mod friction;
+mod hinf;
+mod mfc;
+mod pid;
+mod trajectory;
+mod valve;
+mod velocity;
+
+pub use friction::{FrictionCompensator, FrictionCompensatorParams, StaticMap};
+pub use hinf::{HInfinity, HInfinityParams, PAPER_HINF_DEN, PAPER_HINF_NUM};
+pub use mfc::{Mfc, MfcParams};
+pub use pid::{Pid, PidParams};
+pub use trajectory::{Reference, Trajectory};
+pub use valve::{ValveShaper, ValveShaperParams};
+pub use velocity::{VelocityEstimator, VelocityEstimatorParams};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ControlError {
+    #[error("`{name}` = {value}: {reason}")]
+    InvalidParameter {
+        name: &'static str,
+        value: f64,
+        reason: &'static str,
+    },
+    #[error("{name}: {reason}")]
+    InvalidTable { name: &'static str, reason: String },
+    #[error(transparent)]
+    Lti(#[from] hydractl_lti::LtiError),
+}
+
+pub(crate) fn require(name: &'static str, value: f64, ok: bool, reason: &'static str) -> Result<(), ControlError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(ControlError::InvalidParameter { name, value, reason })
+    }
+}
+
+pub(crate) fn require_positive(name: &'static str, value: f64) -> Result<(), ControlError> {
+    require(name, value, value > 0.0, "must be positive and finite")
+}
+
+pub(crate) fn require_non_negative(name: &'static str, value: f64) -> Result<(), ControlError> {
+    require(name, value, value >= 0.0, "must be non-negative and finite")
+}

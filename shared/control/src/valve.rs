@@ -1,0 +1,136 @@
+use serde::{Deserialize, Serialize};
+
+use crate::{require, require_non_negative, require_positive, ControlError};
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ValveShaperParams {
+    /// Spool overlap to invert, command units (0: no inversion).
+    pub deadzone_width: f64,
+    /// Below this |command| the inverse is a line through zero instead of a
+    /// jump, so that a command dithering around zero does not chatter the
+    /// spool across the overlap.
+    pub deadzone_smoothing: f64,
+    /// Command limit, command units.
+    pub limit: f64,
+    /// Largest change per second, command units/s.
+    pub rate_limit_per_s: f64,
+}
+
+impl Default for ValveShaperParams {
+    fn default() -> Self {
+        Self {
+            deadzone_width: 0.0,
+            deadzone_smoothing: 0.01,
+            limit: 1.0,
+            rate_limit_per_s: 100.0,
+        }
+    }
+}
+
+/// Valve command shaping: dead-zone inverse, then saturation, then rate limit.
+#[derive(Debug, Clone)]
+pub struct ValveShaper {
+    params: ValveShaperParams,
+    max_step: f64,
+    last: f64,
+}
+
+impl ValveShaper {
+    pub fn new(params: ValveShaperParams, ts: f64) -> Result<Self, ControlError> {
+        require_non_negative("deadzone_width", params.deadzone_width)?;
+        require_positive("deadzone_smoothing", params.deadzone_smoothing)?;
+        require(
+            "limit",
+            params.limit,
+            params.limit > 0.0 && params.limit <= 1.0,
+            "must be in (0, 1]",
+        )?;
+        require_positive("rate_limit_per_s", params.rate_limit_per_s)?;
+        require_positive("sample time", ts)?;
+        Ok(Self {
+            params,
+            max_step: params.rate_limit_per_s * ts,
+            last: 0.0,
+        })
+    }
+
+    pub fn reset(&mut self) {
+        self.last = 0.0;
+    }
+
+    /// Starts from the command the valve holds now.
+    pub fn initialize_output(&mut self, command: f64) {
+        self.last = command.clamp(-self.params.limit, self.params.limit);
+    }
+
+    pub fn last(&self) -> f64 {
+        self.last
+    }
+
+    /// The dead-zone inverse alone.
+    pub fn invert_deadzone(&self, command: f64) -> f64 {
+        let w = self.params.deadzone_width;
+        if w == 0.0 {
+            return command;
+        }
+        let s = self.params.deadzone_smoothing;
+        if command.abs() >= s {
+            command + w * command.signum()
+        } else {
+            command * (s + w) / s
+        }
+    }
+
+    /// One period: the command to send for the controller's `command`.
+    pub fn update(&mut self, command: f64) -> f64 {
+        let limited = self
+            .invert_deadzone(command)
+            .clamp(-self.params.limit, self.params.limit);
+        let step = (limited - self.last).clamp(-self.max_step, self.max_step);
+        self.last += step;
+        self.last
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn deadzone_inverse_is_continuous_and_offsets_beyond_smoothing() {
+        let v = ValveShaper::new(
+            ValveShaperParams {
+                deadzone_width: 0.1,
+                ..ValveShaperParams::default()
+            },
+            0.001,
+        )
+        .expect("valid");
+        assert!((v.invert_deadzone(0.3) - 0.4).abs() < 1e-15);
+        assert!((v.invert_deadzone(-0.3) + 0.4).abs() < 1e-15);
+        assert_eq!(v.invert_deadzone(0.0), 0.0);
+        let below = v.invert_deadzone(0.01 - 1e-12);
+        let above = v.invert_deadzone(0.01 + 1e-12);
+        assert!((below - above).abs() < 1e-9);
+    }
+
+    #[test]
+    fn saturates_then_rate_limits() {
+        let mut v = ValveShaper::new(
+            ValveShaperParams {
+                limit: 0.8,
+                rate_limit_per_s: 100.0,
+                ..ValveShaperParams::default()
+            },
+            0.001,
+        )
+        .expect("valid");
+        assert!((v.update(5.0) - 0.1).abs() < 1e-15);
+        for _ in 0..20 {
+            v.update(5.0);
+        }
+        assert!((v.last() - 0.8).abs() < 1e-15);
+        assert!((v.update(-5.0) - 0.7).abs() < 1e-12);
+    }
+}

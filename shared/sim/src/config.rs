@@ -1,0 +1,270 @@
+//! The TOML configuration shared by `hydractl sim` and, later, every live
+//! process: one file describes plant, sensors, effects, controllers and
+//! reference. Unknown keys are errors, so a typo never silently falls back
+//! to a default.
+
+use std::path::{Path, PathBuf};
+
+use hydractl_control::{
+    FrictionCompensatorParams, HInfinityParams, MfcParams, PidParams, Trajectory, ValveShaperParams,
+    VelocityEstimatorParams,
+};
+use hydractl_plant::{EffectsConfig, PlantParams, SensorParams};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("config {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("config {path}: [{section}] {source}")]
+    Plant {
+        path: PathBuf,
+        section: &'static str,
+        source: hydractl_plant::PlantError,
+    },
+    #[error("config {path}: [{section}] {source}")]
+    Control {
+        path: PathBuf,
+        section: &'static str,
+        source: hydractl_control::ControlError,
+    },
+    #[error("config {path}: [timing] {reason}")]
+    Timing { path: PathBuf, reason: String },
+}
+
+/// Position-only: the outer loop drives the valve. Cascade: the outer loop
+/// gives a torque reference to the inner torque loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Structure {
+    Position,
+    Cascade,
+}
+
+impl Structure {
+    pub fn name(self) -> &'static str {
+        match self {
+            Structure::Position => "position",
+            Structure::Cascade => "cascade",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PositionVariant {
+    Pid,
+    Mfc,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TorqueVariant {
+    Pid,
+    Hinf,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Timing {
+    /// Control loop rate, Hz (the papers' dSPACE loops; 1 kHz).
+    pub control_rate_hz: f64,
+    /// Plant integration rate, Hz; an integer multiple of the control rate.
+    pub integration_rate_hz: f64,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Self {
+            control_rate_hz: 1000.0,
+            integration_rate_hz: 10_000.0,
+        }
+    }
+}
+
+impl Timing {
+    pub fn control_period(&self) -> f64 {
+        1.0 / self.control_rate_hz
+    }
+
+    pub fn integration_step(&self) -> f64 {
+        1.0 / self.integration_rate_hz
+    }
+
+    pub fn substeps(&self) -> usize {
+        (self.integration_rate_hz / self.control_rate_hz).round() as usize
+    }
+}
+
+/// Gains for one structure: the outer loop's output is a valve command
+/// (position-only) or a torque in N·m (cascade), so each has its own.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OuterLoopConfig {
+    pub pid: PidParams,
+    pub mfc: MfcParams,
+    pub friction: FrictionCompensatorParams,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TorqueLoopConfig {
+    pub pid: PidParams,
+    #[serde(default)]
+    pub hinf: HInfinityParams,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlConfig {
+    pub structure: Structure,
+    pub position_variant: PositionVariant,
+    pub torque_variant: TorqueVariant,
+    #[serde(default)]
+    pub velocity_estimator: VelocityEstimatorParams,
+    pub position_only: OuterLoopConfig,
+    pub cascade: OuterLoopConfig,
+    pub torque: TorqueLoopConfig,
+    #[serde(default)]
+    pub valve: ValveShaperParams,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimulationConfig {
+    /// Seed of the sensor noise; the same seed gives the same run.
+    pub seed: u64,
+}
+
+impl Default for SimulationConfig {
+    fn default() -> Self {
+        Self { seed: 1 }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    #[serde(default)]
+    pub simulation: SimulationConfig,
+    #[serde(default)]
+    pub timing: Timing,
+    #[serde(default)]
+    pub plant: PlantParams,
+    #[serde(default)]
+    pub sensor: SensorParams,
+    /// Effects switched on in the simulated plant; none by default.
+    #[serde(default)]
+    pub effects: EffectsConfig,
+    pub control: ControlConfig,
+    #[serde(default)]
+    pub trajectory: Trajectory,
+}
+
+impl Config {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and validates; `path` only names the source in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let config: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            message: e.to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    /// The default simulated rotator, compiled in so that tests and a bare
+    /// `hydractl sim` agree with `config/sim.toml`.
+    pub fn default_sim() -> Result<Self, ConfigError> {
+        Self::parse(DEFAULT_SIM_TOML, Path::new("config/sim.toml"))
+    }
+
+    pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let plant = |section: &'static str| {
+            move |source| ConfigError::Plant {
+                path: path.to_owned(),
+                section,
+                source,
+            }
+        };
+        let control = |section: &'static str| {
+            move |source| ConfigError::Control {
+                path: path.to_owned(),
+                section,
+                source,
+            }
+        };
+        self.plant.validate().map_err(plant("plant"))?;
+        self.sensor.validate().map_err(plant("sensor"))?;
+        self.effects.build().map_err(plant("effects"))?;
+        self.trajectory.validate().map_err(control("trajectory"))?;
+        let t = &self.timing;
+        if !(t.control_rate_hz.is_finite() && t.control_rate_hz > 0.0 && t.integration_rate_hz.is_finite()) {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: "control_rate_hz and integration_rate_hz must be positive and finite".into(),
+            });
+        }
+        let ratio = t.integration_rate_hz / t.control_rate_hz;
+        if ratio < 1.0 || (ratio - ratio.round()).abs() > 1e-9 {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: format!(
+                    "integration_rate_hz ({}) must be a whole multiple of control_rate_hz ({})",
+                    t.integration_rate_hz, t.control_rate_hz
+                ),
+            });
+        }
+        // Building every stage validates every controller's parameters.
+        crate::stack::ControlStack::new(self).map_err(|e| match e {
+            crate::stack::StackError::Control { section, source } => ConfigError::Control {
+                path: path.to_owned(),
+                section,
+                source,
+            },
+        })?;
+        Ok(())
+    }
+}
+
+pub const DEFAULT_SIM_TOML: &str = include_str!("../../../config/sim.toml");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_default_parses() {
+        let c = Config::parse(DEFAULT_SIM_TOML, Path::new("config/sim.toml")).expect("valid");
+        assert_eq!(c.timing.substeps(), 10);
+        assert!(c.effects.0.is_empty(), "the default plant has no effects");
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_name_the_place() {
+        let bad = DEFAULT_SIM_TOML.replace("inertia = ", "inertiaa = ");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("unknown key");
+        let text = err.to_string();
+        assert!(text.contains("x.toml") && text.contains("inertiaa"), "{text}");
+
+        let bad = DEFAULT_SIM_TOML.replace("inertia = 20.0", "inertia = -1.0");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("negative");
+        assert!(
+            err.to_string().contains("[plant]") && err.to_string().contains("inertia"),
+            "{err}"
+        );
+
+        let bad = format!("{DEFAULT_SIM_TOML}\n[effects.dedzone]\n");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("unknown effect");
+        assert!(err.to_string().contains("deadzone"), "lists the valid names: {err}");
+    }
+}

@@ -1,0 +1,11 @@
+//! Configuration, the control stack's stages and the offline closed-loop
+//! simulator behind `hydractl sim`.
+
+pub mod config;
+pub mod metrics;
+pub mod simulator;
+pub mod stack;
+
+pub use config::{Config, ConfigError, PositionVariant, Structure, TorqueVariant};
+pub use simulator::{build_plant, simulate, write_csv, Record, SimError, SimulationRun, Summary};
+pub use stack::ControlStack;
