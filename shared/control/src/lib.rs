@@ -46,6 +46,16 @@ pub(crate) fn require_positive(name: &'static str, value: f64) -> Result<(), Con
     require(name, value, value > 0.0, "must be positive and finite")
 }
 
+/// For callers outside the crate validating their own parameters.
+pub fn require_finite(name: &'static str, value: f64) -> Result<(), ControlError> {
+    require(name, value, true, "must be finite")
+}
+
+/// For callers outside the crate validating their own parameters.
+pub fn require_non_negative_pub(name: &'static str, value: f64) -> Result<(), ControlError> {
+    require_non_negative(name, value)
+}
+
 pub(crate) fn require_non_negative(name: &'static str, value: f64) -> Result<(), ControlError> {
     require(name, value, value >= 0.0, "must be non-negative and finite")
 }

@@ -21,7 +21,7 @@ pub struct PlantParams {
     /// Effective bulk modulus β, Pa (eq. 8): oil at 1.5e9 softened by the
     /// long hoses to the crane tip.
     pub bulk_modulus: f64,
-    /// Volume of chamber A with its hose, m³ (V_1 of eq. 8).
+    /// Volume of chamber A with its hose to the crane tip, m³ (V_1 of eq. 8).
     pub volume_a: f64,
     /// Volume of chamber B with its hose, m³ (V_2 of eq. 8).
     pub volume_b: f64,
@@ -30,19 +30,24 @@ pub struct PlantParams {
     /// Flow gain K_q, m³/s per unit spool opening (eq. 9): 2 K_q = 6 L/min
     /// at full opening and no load, about 2 rad/s of rotation.
     pub flow_gain: f64,
-    /// Flow-pressure coefficient K_c, m³/(s·Pa) (eq. 9): a stalled,
-    /// fully opened valve brings its chamber near supply.
+    /// Flow-pressure coefficient K_c, m³/(s·Pa) (eq. 9): small, so a
+    /// stalled valve builds pressure fast (the pressures stay bounded by tank
+    /// and supply).
     pub flow_pressure_coefficient: f64,
     /// Valve spool natural frequency ω_n, rad/s (eq. 10). The rotary paper
     /// identified its valve's resonance near 32 rad/s (eq. 18).
     pub valve_natural_frequency: f64,
-    /// Valve spool damping ratio ξ (eq. 10). Eq. (18)'s pair has ζ = 0.27;
-    /// the crane paper's (eq. 7) has 0.02. A lightly damped 0.2 sits between.
+    /// Valve spool damping ratio ξ (eq. 10): lightly damped, as eq. (18)'s
+    /// pair (33 rad/s, ζ = 0.27).
     pub valve_damping: f64,
     /// Moment of inertia J of rotator, grapple and load, kg·m² (eq. 5).
+    /// With D, β and the volumes it sets the hydraulic-mechanical mode,
+    /// √(2 D² β / (V J)) = 13 rad/s: below the valve, so that pressure
+    /// feedback can damp it, as the papers' cascades do.
     pub inertia: f64,
-    /// Viscous friction b, N·m·s/rad (eq. 5). b/J = 6.5 1/s, the ratio the
-    /// rotary paper identified (b̂/Ĵ = 0.0554/0.0085).
+    /// Viscous friction b, N·m·s/rad (eq. 5). Small enough to leave the
+    /// hydraulic-mechanical mode lightly damped (ζ ≈ 0.1): the oscillation
+    /// both papers measure under position-only control.
     pub viscous_friction: f64,
 }
 
@@ -57,11 +62,11 @@ impl Default for PlantParams {
             volume_b: 1.0e-3,
             leakage: 5.0e-13,
             flow_gain: 5.0e-5,
-            flow_pressure_coefficient: 5.0e-12,
+            flow_pressure_coefficient: 1.0e-12,
             valve_natural_frequency: 32.0,
-            valve_damping: 0.2,
+            valve_damping: 0.3,
             inertia: 20.0,
-            viscous_friction: 130.0,
+            viscous_friction: 17.0,
         }
     }
 }

@@ -98,11 +98,14 @@ impl Timing {
     }
 }
 
-/// Gains for one structure: the outer loop's output is a valve command
-/// (position-only) or a torque in N·m (cascade), so each has its own.
+/// The outer loop of one structure: its output is a valve command
+/// (position-only) or a torque in N·m (cascade), so each structure has its
+/// own variant and gains.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OuterLoopConfig {
+    /// The variant in charge when this structure runs.
+    pub variant: PositionVariant,
     pub pid: PidParams,
     pub mfc: MfcParams,
     pub friction: FrictionCompensatorParams,
@@ -111,16 +114,34 @@ pub struct OuterLoopConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TorqueLoopConfig {
+    /// Valve command per rad/s of reference velocity, added to either
+    /// variant's output: the flow the motion needs, 1 / (rad/s per unit
+    /// command), taken from the reference so that it adds no velocity
+    /// feedback to undo the damping the torque loop gives. 0 switches it off.
+    #[serde(default)]
+    pub velocity_feedforward: f64,
+    /// Valve command per N·m/s of torque-reference rate, added to either
+    /// variant's output. Pressure integrates flow, so the command that makes
+    /// torque rise at rate τ̇ is τ̇ / (D β/V 4 K_q); without it an inner loop
+    /// lags a moving reference. Not in the papers; 0 switches it off.
+    #[serde(default)]
+    pub rate_feedforward: f64,
+    /// Time constant of the low-pass filter on the differenced reference, s.
+    #[serde(default = "default_rate_filter")]
+    pub rate_filter_s: f64,
     pub pid: PidParams,
     #[serde(default)]
     pub hinf: HInfinityParams,
+}
+
+fn default_rate_filter() -> f64 {
+    0.005
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControlConfig {
     pub structure: Structure,
-    pub position_variant: PositionVariant,
     pub torque_variant: TorqueVariant,
     #[serde(default)]
     pub velocity_estimator: VelocityEstimatorParams,
@@ -136,6 +157,16 @@ pub struct ControlConfig {
 pub struct SimulationConfig {
     /// Seed of the sensor noise; the same seed gives the same run.
     pub seed: u64,
+}
+
+impl ControlConfig {
+    /// The outer loop of the structure in charge.
+    pub fn outer(&self) -> &OuterLoopConfig {
+        match self.structure {
+            Structure::Position => &self.position_only,
+            Structure::Cascade => &self.cascade,
+        }
+    }
 }
 
 impl Default for SimulationConfig {

@@ -136,7 +136,7 @@ pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Res
     let sim_seconds = cycles as f64 * period;
     let summary = Summary {
         structure: config.control.structure.name(),
-        position_variant: format!("{:?}", config.control.position_variant).to_lowercase(),
+        position_variant: format!("{:?}", config.control.outer().variant).to_lowercase(),
         torque_variant: match config.control.structure {
             Structure::Position => "bypassed".to_owned(),
             Structure::Cascade => format!("{:?}", config.control.torque_variant).to_lowercase(),

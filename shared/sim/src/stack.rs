@@ -9,7 +9,7 @@ use hydractl_control::{
 };
 use hydractl_plant::RawReading;
 
-use crate::config::{Config, OuterLoopConfig, PositionVariant, Structure, TorqueVariant};
+use crate::config::{Config, PositionVariant, Structure, TorqueVariant};
 
 #[derive(Debug, thiserror::Error)]
 pub enum StackError {
@@ -73,7 +73,7 @@ pub struct FrictionStage {
 
 impl FrictionStage {
     pub fn new(config: &Config) -> Result<Self, StackError> {
-        let outer = outer_config(config);
+        let outer = config.control.outer();
         Ok(Self {
             compensator: FrictionCompensator::new(outer.friction.clone())
                 .map_err(in_section(outer_section(config, "friction")))?,
@@ -83,13 +83,6 @@ impl FrictionStage {
     pub fn process(&mut self, sensor: &SensorEstimate, reference_velocity: f64, valve_command: f64) -> f64 {
         self.compensator
             .update(sensor.velocity, reference_velocity, valve_command)
-    }
-}
-
-fn outer_config(config: &Config) -> &OuterLoopConfig {
-    match config.control.structure {
-        Structure::Position => &config.control.position_only,
-        Structure::Cascade => &config.control.cascade,
     }
 }
 
@@ -131,11 +124,11 @@ pub struct PositionStage {
 
 impl PositionStage {
     pub fn new(config: &Config) -> Result<Self, StackError> {
-        Self::with_variant(config, config.control.position_variant)
+        Self::with_variant(config, config.control.outer().variant)
     }
 
     pub fn with_variant(config: &Config, variant: PositionVariant) -> Result<Self, StackError> {
-        let outer = outer_config(config);
+        let outer = config.control.outer();
         let ts = config.timing.control_period();
         let outer = match variant {
             PositionVariant::Pid => {
@@ -173,6 +166,12 @@ pub enum InnerLoop {
 #[derive(Debug, Clone)]
 pub struct TorqueStage {
     inner: InnerLoop,
+    ts: f64,
+    velocity_feedforward: f64,
+    rate_feedforward: f64,
+    rate_blend: f64,
+    previous_reference: Option<f64>,
+    reference_rate: f64,
 }
 
 impl TorqueStage {
@@ -182,6 +181,13 @@ impl TorqueStage {
 
     pub fn with_variant(config: &Config, variant: TorqueVariant) -> Result<Self, StackError> {
         let ts = config.timing.control_period();
+        let torque = &config.control.torque;
+        hydractl_control::require_finite("velocity_feedforward", torque.velocity_feedforward)
+            .map_err(in_section("control.torque"))?;
+        hydractl_control::require_finite("rate_feedforward", torque.rate_feedforward)
+            .map_err(in_section("control.torque"))?;
+        hydractl_control::require_non_negative_pub("rate_filter_s", torque.rate_filter_s)
+            .map_err(in_section("control.torque"))?;
         let inner = match variant {
             TorqueVariant::Pid => {
                 InnerLoop::Pid(Pid::new(config.control.torque.pid, ts).map_err(in_section("control.torque.pid"))?)
@@ -190,14 +196,36 @@ impl TorqueStage {
                 HInfinity::new(config.control.torque.hinf.clone(), ts).map_err(in_section("control.torque.hinf"))?,
             ),
         };
-        Ok(Self { inner })
+        Ok(Self {
+            inner,
+            ts,
+            velocity_feedforward: torque.velocity_feedforward,
+            rate_feedforward: torque.rate_feedforward,
+            rate_blend: ts / (torque.rate_filter_s + ts),
+            previous_reference: None,
+            reference_rate: 0.0,
+        })
     }
 
-    pub fn process(&mut self, torque_reference: f64, sensor: &SensorEstimate) -> f64 {
+    /// The valve command for a torque reference; `friction` is the friction
+    /// compensation in valve-command units, added as the rotary paper adds
+    /// it to its torque PID.
+    pub fn process(
+        &mut self,
+        torque_reference: f64,
+        reference_velocity: f64,
+        sensor: &SensorEstimate,
+        friction: f64,
+    ) -> f64 {
+        let previous = self.previous_reference.unwrap_or(torque_reference);
+        self.previous_reference = Some(torque_reference);
+        self.reference_rate += self.rate_blend * ((torque_reference - previous) / self.ts - self.reference_rate);
+        let feedforward =
+            friction + self.velocity_feedforward * reference_velocity + self.rate_feedforward * self.reference_rate;
         let error = torque_reference - sensor.torque;
         match &mut self.inner {
-            InnerLoop::Pid(pid) => pid.update(error, 0.0),
-            InnerLoop::HInfinity(hinf) => hinf.update(error),
+            InnerLoop::Pid(pid) => pid.update(error, feedforward),
+            InnerLoop::HInfinity(hinf) => (hinf.update(error) + feedforward).clamp(-1.0, 1.0),
         }
     }
 }
@@ -266,10 +294,21 @@ impl ControlStack {
         let friction = self
             .friction
             .process(&sensor, self.last_reference_velocity, self.last_command);
-        let position = self.position.process(time, &sensor, friction);
-        let (torque_reference, demand) = match self.structure {
-            Structure::Position => (f64::NAN, position.output),
-            Structure::Cascade => (position.output, self.torque.process(position.output, &sensor)),
+        // The friction compensation is a valve command (the crane paper's
+        // pseudo-friction is "the valve current required to overcome
+        // friction"), so it joins whichever loop drives the valve.
+        let (position, torque_reference, demand) = match self.structure {
+            Structure::Position => {
+                let position = self.position.process(time, &sensor, friction);
+                (position, f64::NAN, position.output)
+            }
+            Structure::Cascade => {
+                let position = self.position.process(time, &sensor, 0.0);
+                let demand = self
+                    .torque
+                    .process(position.output, position.reference.velocity, &sensor, friction);
+                (position, position.output, demand)
+            }
         };
         let command = self.valve.process(demand);
         self.last_reference_velocity = position.reference.velocity;

@@ -1,0 +1,122 @@
+//! `hydractl` as a user runs it.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn hydractl() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_hydractl"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hydractl-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+#[test]
+fn sim_writes_the_csv_and_the_summary() {
+    let dir = scratch("sim");
+    let csv = dir.join("run.csv");
+    let json = dir.join("summary.json");
+    let out = hydractl()
+        .args(["sim", "--duration", "2", "--controller", "cascade", "--seed", "3"])
+        .arg("--out")
+        .arg(&csv)
+        .arg("--summary-json")
+        .arg(&json)
+        .args(["--effect", "deadzone:width=0.05", "--effect", "gravity_load"])
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(&csv).expect("csv");
+    let mut lines = text.lines();
+    let header = lines.next().expect("header");
+    assert!(header.starts_with("t,u,p_a,p_b,theta,theta_ref"), "{header}");
+    assert_eq!(lines.count(), 2000);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("valid");
+    for key in [
+        "max_abs_tracking_error_rad",
+        "rms_tracking_error_rad",
+        "sim_seconds",
+        "wall_seconds",
+    ] {
+        assert!(summary[key].is_number(), "{key} in {summary}");
+    }
+    assert_eq!(summary["sim_seconds"], 2.0);
+    assert_eq!(summary["effects"].as_array().map(Vec::len), Some(2));
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn unknown_effects_and_keys_list_the_valid_ones() {
+    let out = hydractl()
+        .args([
+            "sim",
+            "--duration",
+            "1",
+            "--controller",
+            "position",
+            "--effect",
+            "dedzone",
+        ])
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("dedzone") && err.contains("load_flexibility"), "{err}");
+
+    let out = hydractl()
+        .args([
+            "sim",
+            "--duration",
+            "1",
+            "--controller",
+            "position",
+            "--effect",
+            "backlash:widht=0.1",
+        ])
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("widht") && err.contains("width"), "{err}");
+}
+
+#[test]
+fn a_bad_config_names_the_file_and_the_key() {
+    let dir = scratch("config");
+    let path = dir.join("bad.toml");
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/sim.toml")).expect("config");
+    std::fs::write(&path, text.replace("bulk_modulus", "bulk_modulos")).expect("write");
+    let out = hydractl()
+        .args(["sim", "--duration", "1", "--config"])
+        .arg(&path)
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.toml") && err.contains("bulk_modulos"), "{err}");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn effects_lists_the_catalog() {
+    let out = hydractl().arg("effects").output().expect("runs");
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for name in [
+        "deadzone",
+        "saturation",
+        "time_delay",
+        "asymmetric_gain",
+        "orifice_flow",
+        "coulomb_friction",
+        "gravity_load",
+        "backlash",
+        "quantization",
+        "load_flexibility",
+    ] {
+        assert!(text.contains(name), "{name}");
+    }
+}
