@@ -42,8 +42,10 @@ impl StateSpace {
         eigenvalues(&self.a)
     }
 
-    /// The SISO transfer function from `input` to `output`, using the matrix
-    /// determinant lemma: `C (sI - A)^-1 B = det(sI - A + BC) / det(sI - A) - 1`.
+    /// The minimal SISO transfer function from `input` to `output`, using the
+    /// matrix determinant lemma, `C (sI - A)^-1 B = det(sI - A + BC) / det(sI - A) - 1`,
+    /// then cancelling the pole-zero pairs of modes this input does not reach
+    /// or this output does not see.
     pub fn transfer_function(&self, input: usize, output: usize) -> Result<TransferFunction, LtiError> {
         if input >= self.b.ncols() || output >= self.c.nrows() {
             return Err(LtiError::Dimension(format!(
@@ -59,7 +61,7 @@ impl StateSpace {
         let shifted = poly_from_roots(&eigenvalues(&closed));
         let feedthrough = self.d[(output, input)];
         let num: Vec<f64> = shifted.iter().zip(&den).map(|(p, q)| p - q + feedthrough * q).collect();
-        TransferFunction::new(trim_leading_negligible(&num, &shifted, &den), den)
+        Ok(TransferFunction::new(trim_leading_negligible(&num, &shifted, &den), den)?.minimal(1e-6))
     }
 
     /// Zero-order-hold discretization at sample time `ts`, by the matrix

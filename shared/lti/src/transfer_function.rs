@@ -1,6 +1,6 @@
 use nalgebra::{Complex, DMatrix};
 
-use crate::{poly_eval, poly_roots, LtiError, StateSpace};
+use crate::{poly_eval, poly_from_roots, poly_roots, LtiError, StateSpace};
 
 /// A SISO transfer function `num(s) / den(s)`, stored with `den` monic.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,6 +32,36 @@ impl TransferFunction {
             num: num.iter().map(|v| v / lead).collect(),
             den: den.iter().map(|v| v / lead).collect(),
         })
+    }
+
+    /// The same system with pole-zero pairs that coincide within
+    /// `tolerance` (relative to the pole's magnitude, or absolute below 1)
+    /// cancelled: the minimal transfer function of a state space whose modes
+    /// are not all controllable and observable from this input and output.
+    pub fn minimal(&self, tolerance: f64) -> TransferFunction {
+        let mut zeros = self.zeros();
+        let mut poles = self.poles();
+        let gain = self.num[0];
+        let mut i = 0;
+        while i < zeros.len() {
+            let nearest = poles
+                .iter()
+                .enumerate()
+                .map(|(j, p)| (j, (zeros[i] - p).norm() / p.norm().max(1.0)))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            match nearest {
+                Some((j, distance)) if distance <= tolerance => {
+                    zeros.remove(i);
+                    poles.remove(j);
+                }
+                _ => i += 1,
+            }
+        }
+        let num: Vec<f64> = poly_from_roots(&zeros).iter().map(|c| c * gain).collect();
+        Self {
+            num,
+            den: poly_from_roots(&poles),
+        }
     }
 
     pub fn num(&self) -> &[f64] {
@@ -183,7 +213,8 @@ mod tests {
 
     #[test]
     fn realization_round_trips() {
-        let tf = TransferFunction::new(vec![1.0, 3.0, 2.0], vec![1.0, 4.0, 6.0, 4.0]).expect("tf");
+        // Coprime: a common factor would be cancelled by the minimal realization.
+        let tf = TransferFunction::new(vec![1.0, 3.0, 5.0], vec![1.0, 4.0, 6.0, 4.0]).expect("tf");
         let back = tf.to_state_space().transfer_function(0, 0).expect("tf");
         for (a, b) in back.num().iter().zip(tf.num()) {
             assert!((a - b).abs() < 1e-8, "{:?} vs {:?}", back.num(), tf.num());
@@ -191,6 +222,16 @@ mod tests {
         for (a, b) in back.den().iter().zip(tf.den()) {
             assert!((a - b).abs() < 1e-8);
         }
+    }
+
+    #[test]
+    fn minimal_cancels_coincident_pole_zero_pairs() {
+        // (s + 2) s / ((s + 2) s (s + 3)) = 1 / (s + 3).
+        let tf = TransferFunction::new(vec![1.0, 2.0, 0.0], vec![1.0, 5.0, 6.0, 0.0]).expect("tf");
+        let m = tf.minimal(1e-9);
+        assert_eq!(m.num().len(), 1);
+        assert!((m.num()[0] - 1.0).abs() < 1e-12);
+        assert!((m.den()[0] - 1.0).abs() < 1e-12 && (m.den()[1] - 3.0).abs() < 1e-9);
     }
 
     #[test]

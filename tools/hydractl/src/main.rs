@@ -20,6 +20,9 @@ enum Command {
     Sim(SimArgs),
     /// List the effect catalog: names, keys, defaults and units.
     Effects,
+    /// The baseline plant's linear model from valve command to an output:
+    /// transfer function, poles with natural frequency and damping, DC gain.
+    Linearize(LinearizeArgs),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -58,6 +61,28 @@ struct SimArgs {
     summary_json: Option<PathBuf>,
 }
 
+#[derive(clap::Args)]
+struct LinearizeArgs {
+    /// Configuration file [default: the built-in config/sim.toml]
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Output of the transfer function.
+    #[arg(long, value_enum, default_value_t = LinearOutput::Torque)]
+    output: LinearOutput,
+    /// Print JSON: {"output", "num", "den", "poles": [{"re", "im", "natural_frequency_rad_s", "damping"}], "dc_gain"}.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum LinearOutput {
+    Torque,
+    Angle,
+    Velocity,
+    PA,
+    PB,
+}
+
 #[derive(Subcommand)]
 enum BenchCommand {
     /// Simulated seconds per wall-clock second of the default plant
@@ -71,14 +96,23 @@ enum BenchCommand {
     },
 }
 
+/// Writes to stdout; a reader that closed the pipe early (`| head`) ends
+/// the output quietly instead of failing.
+fn emit(text: &str) -> Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Sim(args) => run_sim(args),
-        Command::Effects => {
-            print_effects();
-            Ok(())
-        }
+        Command::Effects => emit(&effects_table()),
+        Command::Linearize(args) => linearize(args),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
     }
 }
@@ -111,8 +145,8 @@ fn run_sim(args: SimArgs) -> Result<()> {
         write_csv(&run.records, out)?;
     }
     let s = &run.summary;
-    println!(
-        "{} ({} outer, {} inner), {} effect(s): max |e| = {:.4} rad, rms e = {:.4} rad, torque power > 10 rad/s = {:.1} (N·m)², {:.0} s simulated in {:.3} s ({:.0}× real time)",
+    emit(&format!(
+        "{} ({} outer, {} inner), {} effect(s): max |e| = {:.4} rad, rms e = {:.4} rad, torque power > 10 rad/s = {:.1} (N·m)², {:.0} s simulated in {:.3} s ({:.0}× real time)\n",
         s.structure,
         s.position_variant,
         s.torque_variant,
@@ -123,7 +157,7 @@ fn run_sim(args: SimArgs) -> Result<()> {
         s.sim_seconds,
         s.wall_seconds,
         s.real_time_factor
-    );
+    ))?;
     if let Some(path) = &args.summary_json {
         let json = serde_json::to_string_pretty(s)?;
         std::fs::write(path, json + "\n").with_context(|| format!("cannot write {}", path.display()))?;
@@ -131,19 +165,74 @@ fn run_sim(args: SimArgs) -> Result<()> {
     Ok(())
 }
 
-fn print_effects() {
+fn linearize(args: LinearizeArgs) -> Result<()> {
+    let config = load_config(args.config.as_deref())?;
+    let model = hydractl_plant::baseline_linear_model(&config.plant)?;
+    let output = args.output as usize;
+    let name = hydractl_plant::LINEAR_OUTPUTS[output];
+    let tf = model.transfer_function(0, output)?;
+    let poles: Vec<serde_json::Value> = tf
+        .poles()
+        .iter()
+        .filter(|p| p.im >= 0.0)
+        .map(|p| {
+            serde_json::json!({
+                "re": p.re,
+                "im": p.im,
+                "natural_frequency_rad_s": p.norm(),
+                "damping": if p.norm() > 0.0 { -p.re / p.norm() } else { 1.0 },
+            })
+        })
+        .collect();
+    // An output with an integrator (the angle) has no finite DC gain.
+    let scale = tf.poles().iter().fold(1.0_f64, |m, p| m.max(p.norm()));
+    let integrating = tf.poles().iter().any(|p| p.norm() < 1e-9 * scale);
+    let dc_gain = if integrating { f64::INFINITY } else { tf.dc_gain() };
+    if args.json {
+        let json = serde_json::json!({
+            "output": name,
+            "num": tf.num(),
+            "den": tf.den(),
+            "poles": poles,
+            "dc_gain": if dc_gain.is_finite() { serde_json::json!(dc_gain) } else { serde_json::Value::Null },
+        });
+        return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
+    }
+    use std::fmt::Write;
+    let fmt = |p: &[f64]| p.iter().map(|c| format!("{c:.6e}")).collect::<Vec<_>>().join(", ");
+    let mut text = format!("valve command → {name}, baseline plant linearized (SI units)\n");
+    writeln!(text, "  num: [{}]", fmt(tf.num()))?;
+    writeln!(text, "  den: [{}]", fmt(tf.den()))?;
+    for p in &poles {
+        writeln!(
+            text,
+            "  pole {:>10.4} {:+10.4}j   ω_n = {:8.3} rad/s   ζ = {:.3}",
+            p["re"].as_f64().unwrap_or(f64::NAN),
+            p["im"].as_f64().unwrap_or(f64::NAN),
+            p["natural_frequency_rad_s"].as_f64().unwrap_or(f64::NAN),
+            p["damping"].as_f64().unwrap_or(f64::NAN)
+        )?;
+    }
+    writeln!(text, "  DC gain: {dc_gain:.6e}")?;
+    emit(&text)
+}
+
+fn effects_table() -> String {
+    let mut text = String::new();
     for kind in EffectKind::ALL {
-        println!("{}", kind.name());
+        text += kind.name();
+        text += "\n";
         if kind.params().is_empty() {
-            println!("    (no parameters)");
+            text += "    (no parameters)\n";
         }
         for p in kind.params() {
-            println!(
-                "    {:<18} default {:<10} {:<10} {}",
+            text += &format!(
+                "    {:<18} default {:<10} {:<10} {}\n",
                 p.key, p.default, p.unit, p.meaning
             );
         }
     }
+    text
 }
 
 fn bench_sim(duration: f64, repeat: usize) -> Result<()> {
@@ -156,14 +245,13 @@ fn bench_sim(duration: f64, repeat: usize) -> Result<()> {
     }
     factors.sort_by(f64::total_cmp);
     let median = factors[factors.len() / 2];
-    println!(
+    emit(&format!(
         "bench sim: default plant, cascade, {} kHz integration, {} kHz control, {duration} s × {}: \
-         simulated s per wall s: median {median:.0}, min {:.0}, max {:.0}",
+         simulated s per wall s: median {median:.0}, min {:.0}, max {:.0}\n",
         config.timing.integration_rate_hz / 1000.0,
         config.timing.control_rate_hz / 1000.0,
         factors.len(),
         factors[0],
         factors[factors.len() - 1]
-    );
-    Ok(())
+    ))
 }

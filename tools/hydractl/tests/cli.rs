@@ -120,3 +120,24 @@ fn effects_lists_the_catalog() {
         assert!(text.contains(name), "{name}");
     }
 }
+
+#[test]
+fn linearize_shows_the_lightly_damped_pair_and_a_monic_denominator() {
+    let out = hydractl().args(["linearize", "--json"]).output().expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(json["output"], "torque");
+    assert_eq!(json["den"][0], 1.0);
+    let poles = json["poles"].as_array().expect("poles");
+    assert!(poles.iter().any(|p| {
+        let wn = p["natural_frequency_rad_s"].as_f64().unwrap_or(0.0);
+        let zeta = p["damping"].as_f64().unwrap_or(1.0);
+        (25.0..=40.0).contains(&wn) && zeta < 0.35
+    }));
+    let out = hydractl()
+        .args(["linearize", "--json", "--output", "angle"])
+        .output()
+        .expect("runs");
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert!(json["dc_gain"].is_null(), "the angle integrates");
+}
