@@ -73,6 +73,27 @@ pub struct Timing {
     pub control_rate_hz: f64,
     /// Plant integration rate, Hz; an integer multiple of the control rate.
     pub integration_rate_hz: f64,
+    /// The CPU the live loop's processes (plant, sensor, friction,
+    /// position, torque, valve) are pinned to; none to let the scheduler
+    /// place them. A wake-up across cores costs about 25 µs per hop on a
+    /// small virtual machine; on one core the pipeline's hand-offs are cheap.
+    pub loop_cpu: Option<usize>,
+    /// What the live plant process does when the computer stalls.
+    pub stall_policy: StallPolicy,
+    /// How long, in periods, the paused plant waits for a command before it
+    /// counts a deadline miss and goes on with the valve's last command.
+    pub command_timeout_periods: f64,
+}
+
+/// A stalled computer delays the loop. A simulated plant can wait for it
+/// (`pause`: its time is the loop's, so it stays exactly the offline
+/// simulation); a machine cannot (`catch_up`: physics runs on with the
+/// valve's last command, as a stand-in for real hardware).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StallPolicy {
+    Pause,
+    CatchUp,
 }
 
 impl Default for Timing {
@@ -80,6 +101,9 @@ impl Default for Timing {
         Self {
             control_rate_hz: 1000.0,
             integration_rate_hz: 10_000.0,
+            loop_cpu: None,
+            stall_policy: StallPolicy::Pause,
+            command_timeout_periods: 3.0,
         }
     }
 }
@@ -150,6 +174,51 @@ pub struct ControlConfig {
     pub torque: TorqueLoopConfig,
     #[serde(default)]
     pub valve: ValveShaperParams,
+    #[serde(default)]
+    pub valve_guard: ValveGuardParams,
+}
+
+/// The valve's last line of safety.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ValveGuardParams {
+    /// A command derived from a sensor reading more than this many periods
+    /// older than the newest one puts the valve in neutral.
+    pub max_age_periods: u64,
+}
+
+impl Default for ValveGuardParams {
+    fn default() -> Self {
+        Self { max_age_periods: 3 }
+    }
+}
+
+/// How the supervisor watches the live processes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SupervisorConfig {
+    /// A process whose output stops for this long while its input flows is
+    /// hung: it is killed and restarted.
+    pub hung_after_ms: u64,
+    /// First delay before a restart; doubles per consecutive failure.
+    pub restart_backoff_initial_ms: u64,
+    pub restart_backoff_max_ms: u64,
+    /// A process up this long has its back-off reset.
+    pub healthy_after_ms: u64,
+    /// How long a stopping process may take before it is killed.
+    pub stop_timeout_ms: u64,
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        Self {
+            hung_after_ms: 50,
+            restart_backoff_initial_ms: 10,
+            restart_backoff_max_ms: 2000,
+            healthy_after_ms: 5000,
+            stop_timeout_ms: 1000,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -192,6 +261,8 @@ pub struct Config {
     pub control: ControlConfig,
     #[serde(default)]
     pub trajectory: Trajectory,
+    #[serde(default)]
+    pub supervisor: SupervisorConfig,
 }
 
 impl Config {
@@ -243,6 +314,15 @@ impl Config {
             return Err(ConfigError::Timing {
                 path: path.to_owned(),
                 reason: "control_rate_hz and integration_rate_hz must be positive and finite".into(),
+            });
+        }
+        if !(t.command_timeout_periods.is_finite() && t.command_timeout_periods > 0.0) {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: format!(
+                    "command_timeout_periods must be positive, got {}",
+                    t.command_timeout_periods
+                ),
             });
         }
         let ratio = t.integration_rate_hz / t.control_rate_hz;

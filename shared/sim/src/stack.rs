@@ -84,6 +84,11 @@ impl FrictionStage {
         self.compensator
             .update(sensor.velocity, reference_velocity, valve_command)
     }
+
+    /// The blended velocity of eq. (1) behind the last compensation.
+    pub fn blended_velocity(&self) -> f64 {
+        self.compensator.blended_velocity()
+    }
 }
 
 fn outer_section(config: &Config, part: &'static str) -> &'static str {
@@ -118,6 +123,8 @@ pub struct PositionOutput {
 /// Position stage: reference trajectory and outer loop.
 #[derive(Debug, Clone)]
 pub struct PositionStage {
+    structure: Structure,
+    variant: PositionVariant,
     trajectory: Trajectory,
     outer: OuterLoop,
 }
@@ -139,12 +146,29 @@ impl PositionStage {
             }
         };
         Ok(Self {
+            structure: config.control.structure,
+            variant,
             trajectory: config.trajectory.clone(),
             outer,
         })
     }
 
+    pub fn variant(&self) -> PositionVariant {
+        self.variant
+    }
+
+    pub fn structure(&self) -> Structure {
+        self.structure
+    }
+
+    /// One period. The friction compensation (a valve command) joins this
+    /// loop's output only when this loop drives the valve (position-only);
+    /// in the cascade the torque stage adds it.
     pub fn process(&mut self, time: f64, sensor: &SensorEstimate, friction: f64) -> PositionOutput {
+        let friction = match self.structure {
+            Structure::Position => friction,
+            Structure::Cascade => 0.0,
+        };
         let reference = self.trajectory.sample(time);
         let error = reference.angle - sensor.angle;
         let output = match &mut self.outer {
@@ -165,6 +189,8 @@ pub enum InnerLoop {
 /// Torque stage: the inner loop, torque reference to valve command.
 #[derive(Debug, Clone)]
 pub struct TorqueStage {
+    structure: Structure,
+    variant: TorqueVariant,
     inner: InnerLoop,
     ts: f64,
     velocity_feedforward: f64,
@@ -197,6 +223,8 @@ impl TorqueStage {
             ),
         };
         Ok(Self {
+            structure: config.control.structure,
+            variant,
             inner,
             ts,
             velocity_feedforward: torque.velocity_feedforward,
@@ -207,10 +235,23 @@ impl TorqueStage {
         })
     }
 
-    /// The valve command for a torque reference; `friction` is the friction
-    /// compensation in valve-command units, added as the rotary paper adds
-    /// it to its torque PID.
-    pub fn process(
+    pub fn variant(&self) -> TorqueVariant {
+        self.variant
+    }
+
+    /// The valve command for the position stage's output. In the cascade
+    /// that output is a torque reference and the inner loop runs, with the
+    /// friction compensation (valve-command units) added as the rotary paper
+    /// adds it to its torque PID; in position-only control it already is
+    /// the command, and passes through.
+    pub fn process(&mut self, position: &PositionOutput, sensor: &SensorEstimate, friction: f64) -> f64 {
+        match self.structure {
+            Structure::Position => position.output,
+            Structure::Cascade => self.inner_loop(position.output, position.reference.velocity, sensor, friction),
+        }
+    }
+
+    fn inner_loop(
         &mut self,
         torque_reference: f64,
         reference_velocity: f64,
@@ -230,22 +271,196 @@ impl TorqueStage {
     }
 }
 
-/// Valve stage: command shaping.
+/// Why the valve went to neutral.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ValveFaults {
+    /// No command derived from a recent enough sensor reading.
+    pub stale: bool,
+    pub not_finite: bool,
+    pub out_of_range: bool,
+    /// The sensor reading behind the command was not valid.
+    pub invalid_sensor: bool,
+}
+
+impl ValveFaults {
+    pub fn any(&self) -> bool {
+        self.stale || self.not_finite || self.out_of_range || self.invalid_sensor
+    }
+}
+
+/// Valve stage: command shaping, and the last line of safety: a stale,
+/// non-finite or out-of-range command, or one derived from an invalid
+/// reading, puts the valve in neutral at once (not rate-limited) and says
+/// why. It never passes garbage on.
+///
+/// A command's age is counted in loop periods the valve has seen (sensor
+/// readings received), not in sequence numbers: when the whole computer
+/// stalls, every process stalls together and no command is stale for it,
+/// while a dead or hung controller leaves the readings coming and the
+/// commands not, which trips the guard after `max_age_periods` readings.
 #[derive(Debug, Clone)]
 pub struct ValveStage {
     shaper: ValveShaper,
+    max_age: u64,
+    /// Readings received since the last command.
+    readings_since_command: u64,
+    /// The most recent readings' sequence numbers, newest last; a command
+    /// derived from a reading older than all of them is stale.
+    recent_readings: [u64; 2 * MAX_GUARD_PERIODS],
+    recent_count: usize,
 }
+
+/// The longest guard the valve supports, in periods.
+pub const MAX_GUARD_PERIODS: usize = 32;
 
 impl ValveStage {
     pub fn new(config: &Config) -> Result<Self, StackError> {
+        let max_age = config.control.valve_guard.max_age_periods;
+        if max_age == 0 || max_age as usize > MAX_GUARD_PERIODS {
+            return Err(StackError::Control {
+                section: "control.valve_guard",
+                source: ControlError::InvalidParameter {
+                    name: "max_age_periods",
+                    value: max_age as f64,
+                    reason: "must be from 1 to 32",
+                },
+            });
+        }
         Ok(Self {
             shaper: ValveShaper::new(config.control.valve, config.timing.control_period())
                 .map_err(in_section("control.valve"))?,
+            max_age,
+            readings_since_command: 0,
+            recent_readings: [0; 2 * MAX_GUARD_PERIODS],
+            recent_count: 0,
         })
     }
 
+    /// Shapes a command known to be sound (the offline loop's path).
     pub fn process(&mut self, command: f64) -> f64 {
         self.shaper.update(command)
+    }
+
+    /// A command derived from sensor reading `seq`. Returns the command to
+    /// drive and the faults.
+    pub fn on_command(&mut self, seq: u64, requested: f64, sensor_valid: bool) -> (f64, ValveFaults) {
+        let faults = ValveFaults {
+            stale: self.readings_after(seq) > self.max_age,
+            not_finite: !requested.is_finite(),
+            out_of_range: requested.is_finite() && requested.abs() > 1.0 + 1e-9,
+            invalid_sensor: !sensor_valid,
+        };
+        self.readings_since_command = 0;
+        if faults.any() {
+            return (self.neutral(), faults);
+        }
+        (self.shaper.update(requested), faults)
+    }
+
+    /// A new sensor reading `seq`: after more than `max_age` readings with no
+    /// command, the valve goes to neutral (`Some`).
+    pub fn on_sensor(&mut self, seq: u64) -> Option<(f64, ValveFaults)> {
+        let n = self.recent_readings.len();
+        if self.recent_count == n {
+            self.recent_readings.copy_within(1.., 0);
+            self.recent_readings[n - 1] = seq;
+        } else {
+            self.recent_readings[self.recent_count] = seq;
+            self.recent_count += 1;
+        }
+        self.readings_since_command += 1;
+        if self.readings_since_command > self.max_age {
+            let faults = ValveFaults {
+                stale: true,
+                ..ValveFaults::default()
+            };
+            return Some((self.neutral(), faults));
+        }
+        None
+    }
+
+    /// How many readings the valve has received after reading `seq`.
+    fn readings_after(&self, seq: u64) -> u64 {
+        self.recent_readings[..self.recent_count]
+            .iter()
+            .filter(|&&r| r > seq)
+            .count() as u64
+    }
+
+    fn neutral(&mut self) -> f64 {
+        self.shaper.initialize_output(0.0);
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn valve() -> ValveStage {
+        ValveStage::new(&Config::default_sim().expect("valid")).expect("stage")
+    }
+
+    #[test]
+    fn valve_passes_sound_commands_through_the_shaper() {
+        let mut v = valve();
+        assert!(v.on_sensor(10).is_none());
+        let (command, faults) = v.on_command(10, 0.05, true);
+        assert!(!faults.any());
+        assert!((command - 0.05).abs() < 1e-12);
+    }
+
+    #[test]
+    fn valve_goes_neutral_on_garbage_at_once() {
+        let mut v = valve();
+        v.on_sensor(1);
+        v.on_command(1, 0.05, true);
+        v.on_sensor(2);
+        let (command, faults) = v.on_command(2, f64::NAN, true);
+        assert_eq!((command, faults.not_finite), (0.0, true));
+        v.on_sensor(3);
+        let (command, faults) = v.on_command(3, 1.5, true);
+        assert_eq!((command, faults.out_of_range), (0.0, true));
+        v.on_sensor(4);
+        let (command, faults) = v.on_command(4, 0.05, false);
+        assert_eq!((command, faults.invalid_sensor), (0.0, true));
+    }
+
+    #[test]
+    fn a_command_three_readings_old_is_fresh_and_four_is_stale() {
+        let mut v = valve();
+        for seq in 5..=8 {
+            v.on_sensor(seq);
+        }
+        let (_, faults) = v.on_command(5, 0.05, true);
+        assert!(!faults.stale, "readings 6, 7, 8 came after it");
+        v.on_sensor(9);
+        let (command, faults) = v.on_command(5, 0.05, true);
+        assert_eq!((command, faults.stale), (0.0, true));
+    }
+
+    #[test]
+    fn valve_goes_neutral_when_commands_stop() {
+        let mut v = valve();
+        v.on_sensor(10);
+        v.on_command(10, 0.05, true);
+        assert!(v.on_sensor(11).is_none());
+        assert!(v.on_sensor(12).is_none());
+        assert!(v.on_sensor(13).is_none());
+        let (command, faults) = v.on_sensor(14).expect("stale after 3 periods");
+        assert_eq!((command, faults.stale), (0.0, true));
+    }
+
+    #[test]
+    fn a_stall_of_the_whole_machine_is_not_a_stale_command() {
+        // The plant skipped ahead after the computer stalled: one reading
+        // far ahead, and its command right after.
+        let mut v = valve();
+        v.on_sensor(10);
+        v.on_command(10, 0.05, true);
+        assert!(v.on_sensor(17).is_none());
+        let (_, faults) = v.on_command(17, 0.05, true);
+        assert!(!faults.any());
     }
 }
 
@@ -294,21 +509,11 @@ impl ControlStack {
         let friction = self
             .friction
             .process(&sensor, self.last_reference_velocity, self.last_command);
-        // The friction compensation is a valve command (the crane paper's
-        // pseudo-friction is "the valve current required to overcome
-        // friction"), so it joins whichever loop drives the valve.
-        let (position, torque_reference, demand) = match self.structure {
-            Structure::Position => {
-                let position = self.position.process(time, &sensor, friction);
-                (position, f64::NAN, position.output)
-            }
-            Structure::Cascade => {
-                let position = self.position.process(time, &sensor, 0.0);
-                let demand = self
-                    .torque
-                    .process(position.output, position.reference.velocity, &sensor, friction);
-                (position, position.output, demand)
-            }
+        let position = self.position.process(time, &sensor, friction);
+        let demand = self.torque.process(&position, &sensor, friction);
+        let torque_reference = match self.structure {
+            Structure::Position => f64::NAN,
+            Structure::Cascade => position.output,
         };
         let command = self.valve.process(demand);
         self.last_reference_velocity = position.reference.velocity;

@@ -1,5 +1,7 @@
 //! `hydractl`: the command line of the hydraulic rotator control stack.
 
+mod run;
+
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -16,6 +18,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the whole stack live: every stage its own process over iceoryx2,
+    /// on the simulated plant, supervised.
+    Run(run::RunArgs),
     /// Run the closed loop offline, in one process, as fast as the CPU allows.
     Sim(SimArgs),
     /// List the effect catalog: names, keys, defaults and units.
@@ -98,7 +103,7 @@ enum BenchCommand {
 
 /// Writes to stdout; a reader that closed the pipe early (`| head`) ends
 /// the output quietly instead of failing.
-fn emit(text: &str) -> Result<()> {
+pub(crate) fn emit(text: &str) -> Result<()> {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
     match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
@@ -110,6 +115,7 @@ fn emit(text: &str) -> Result<()> {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Run(args) => run::run(args),
         Command::Sim(args) => run_sim(args),
         Command::Effects => emit(&effects_table()),
         Command::Linearize(args) => linearize(args),

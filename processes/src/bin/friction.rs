@@ -1,0 +1,48 @@
+//! The crane paper's friction compensation (its eq. 1) on each sensor
+//! sample, with the previous period's reference velocity and valve command.
+
+use anyhow::Result;
+use hydractl_bus::{clock, run_loop, Flow, Inlet, Outlet};
+use hydractl_processes::estimate_of;
+use hydractl_samples::{service, FrictionSample, PositionSample, SensorSample, ValveSample};
+use hydractl_sim::stack::FrictionStage;
+
+fn main() -> Result<()> {
+    let started = hydractl_processes::start("friction")?;
+    let bus = &started.bus;
+    let mut stage = FrictionStage::new(&started.config)?;
+    let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
+    let position: Inlet<PositionSample> = Inlet::open(bus, service::POSITION, 4)?;
+    let valve: Inlet<ValveSample> = Inlet::open(bus, service::VALVE, 4)?;
+    let out: Outlet<FrictionSample> = Outlet::open(bus, service::FRICTION)?;
+    let (mut reference_velocity, mut valve_command) = (0.0, 0.0);
+    let mut failure = None;
+    run_loop(&[sensor.listener()], None, |_| {
+        let mut step = || -> Result<()> {
+            if let Some(p) = position.latest()? {
+                reference_velocity = p.reference_velocity;
+            }
+            if let Some(v) = valve.latest()? {
+                valve_command = v.command;
+            }
+            let Some(s) = sensor.latest()? else { return Ok(()) };
+            let compensation = stage.process(&estimate_of(&s), reference_velocity, valve_command);
+            out.publish(FrictionSample {
+                sensor_seq: s.sensor_seq,
+                sensor_time_ns: s.sensor_time_ns,
+                stage_time_ns: clock::now_ns(),
+                compensation,
+                blended_velocity: stage.blended_velocity(),
+            })?;
+            Ok(())
+        };
+        match step() {
+            Ok(()) => Flow::Continue,
+            Err(e) => {
+                failure = Some(e);
+                Flow::Stop
+            }
+        }
+    })?;
+    failure.map_or(Ok(()), Err)
+}

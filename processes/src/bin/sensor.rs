@@ -1,0 +1,65 @@
+//! Reads the machine's sensors through a device and publishes the sensor
+//! sample: angle, velocity estimate, pressures, torque, validity.
+
+use anyhow::Result;
+use hydractl_bus::devices::{SensorDevice, SimulatedSensors};
+use hydractl_bus::{clock, run_loop, Flow, Outlet};
+use hydractl_plant::RawReading;
+use hydractl_samples::{service, valid, SensorSample};
+use hydractl_sim::stack::SensorStage;
+
+fn main() -> Result<()> {
+    let started = hydractl_processes::start("sensor")?;
+    let mut stage = SensorStage::new(&started.config)?;
+    let device = SimulatedSensors::open(&started.bus)?;
+    let out: Outlet<SensorSample> = Outlet::open(&started.bus, service::SENSOR)?;
+    let mut failure = None;
+    run_loop(&[device.listener()], None, |_| {
+        let reading = match device.try_read() {
+            Ok(Some(r)) => r,
+            Ok(None) => return Flow::Continue,
+            Err(e) => {
+                failure = Some(e);
+                return Flow::Stop;
+            }
+        };
+        let mut flags = 0;
+        if reading.angle.is_finite() {
+            flags |= valid::ANGLE;
+        }
+        if reading.p_a.is_finite() {
+            flags |= valid::PRESSURE_A;
+        }
+        if reading.p_b.is_finite() {
+            flags |= valid::PRESSURE_B;
+        }
+        let estimate = stage.process(&RawReading {
+            angle: reading.angle,
+            p_a: reading.p_a,
+            p_b: reading.p_b,
+        });
+        let sample = SensorSample {
+            sensor_seq: reading.seq,
+            sensor_time_ns: reading.time_ns,
+            stage_time_ns: clock::now_ns(),
+            angle: estimate.angle,
+            velocity: estimate.velocity,
+            p_a: estimate.p_a,
+            p_b: estimate.p_b,
+            torque: estimate.torque,
+            valid: flags,
+            reserved: 0,
+        };
+        match out.publish(sample) {
+            Ok(()) => Flow::Continue,
+            Err(e) => {
+                failure = Some(e);
+                Flow::Stop
+            }
+        }
+    })?;
+    match failure {
+        Some(e) => Err(e.into()),
+        None => Ok(()),
+    }
+}

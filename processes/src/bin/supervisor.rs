@@ -1,0 +1,186 @@
+//! The watchdog: starts every process of the loop, restarts a crashed or
+//! hung one with back-off after cleaning its stale iceoryx2 resources,
+//! publishes the status of all, and on SIGTERM or SIGINT stops them and
+//! removes every file of the run.
+
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use hydractl_bus::{clock, run_loop, Bus, Flow, Inlet, Outlet, RunScope};
+use hydractl_processes::supervision::{binary_dir, Supervised, PIPELINE};
+use hydractl_samples::{
+    fixed_name, service, FrictionSample, PlantReading, PositionSample, ProcessStatus, SensorSample, SupervisorStatus,
+    TorqueSample, ValveSample, MAX_PROCESSES,
+};
+
+/// The newest sequence number seen on each pipeline service.
+struct Heartbeats {
+    plant: Inlet<PlantReading>,
+    sensor: Inlet<SensorSample>,
+    friction: Inlet<FrictionSample>,
+    position: Inlet<PositionSample>,
+    torque: Inlet<TorqueSample>,
+    valve: Inlet<ValveSample>,
+}
+
+impl Heartbeats {
+    fn open(bus: &Bus) -> Result<Self> {
+        Ok(Self {
+            plant: Inlet::open(bus, service::PLANT_READING, 4)?,
+            sensor: Inlet::open(bus, service::SENSOR, 4)?,
+            friction: Inlet::open(bus, service::FRICTION, 4)?,
+            position: Inlet::open(bus, service::POSITION, 4)?,
+            torque: Inlet::open(bus, service::TORQUE, 4)?,
+            valve: Inlet::open(bus, service::VALVE, 4)?,
+        })
+    }
+
+    /// Which of the pipeline's outputs advanced since the last call, in
+    /// [`PIPELINE`] order.
+    fn advanced(&self) -> Result<[bool; 6]> {
+        Ok([
+            self.plant.latest()?.is_some(),
+            self.sensor.latest()?.is_some(),
+            self.friction.latest()?.is_some(),
+            self.position.latest()?.is_some(),
+            self.torque.latest()?.is_some(),
+            self.valve.latest()?.is_some(),
+        ])
+    }
+}
+
+fn main() -> Result<()> {
+    let started = hydractl_processes::start("supervisor")?;
+    let scope = started.bus.scope().clone();
+    let policy = started.config.supervisor.clone();
+    // Over what a crashed run left: its dead nodes, and its files when
+    // nothing of it is alive but us.
+    scope.remove_dead_nodes()?;
+    let dir = binary_dir()?;
+    let mut children: Vec<Supervised> = PIPELINE
+        .iter()
+        .map(|(name, _, _)| Supervised::new(name, &dir, started.args.config.clone()))
+        .collect();
+    let outcome = supervise(&started.bus, &scope, &policy, &mut children);
+
+    // Stop everything, then clean what is left.
+    let deadline = Instant::now() + Duration::from_millis(policy.stop_timeout_ms);
+    for child in children.iter().rev() {
+        child.request_stop();
+    }
+    for child in children.iter_mut().rev() {
+        child.finish_stop(deadline);
+    }
+    drop(started.bus);
+    scope.remove_dead_nodes()?;
+    if scope.live_nodes()? == 0 {
+        scope.remove_all_files()?;
+    }
+    outcome
+}
+
+fn supervise(
+    bus: &Bus,
+    scope: &RunScope,
+    policy: &hydractl_sim::SupervisorConfig,
+    children: &mut [Supervised],
+) -> Result<()> {
+    for child in children.iter_mut() {
+        child.spawn(scope)?;
+    }
+    let heartbeats = Heartbeats::open(bus)?;
+    let status: Outlet<SupervisorStatus> = Outlet::open(bus, service::SUPERVISOR_STATUS)?;
+    let hung_after = Duration::from_millis(policy.hung_after_ms);
+    // A (re)started process gets this long to open its ports.
+    let startup_grace = Duration::from_millis(500);
+    let own_pid = std::process::id();
+    let mut last_status = Instant::now();
+    let mut failure = None;
+    run_loop(&[], Some(Duration::from_millis(5)), |_| {
+        let mut step = || -> Result<()> {
+            let now = Instant::now();
+            let advanced = heartbeats.advanced()?;
+            for (child, &moved) in children.iter_mut().zip(&advanced) {
+                if moved {
+                    child.last_output = now;
+                }
+            }
+            let mut cleanup_needed = false;
+            for i in 0..children.len() {
+                // Hung: running past its grace, its input flowing (the plant
+                // paces itself), and no output for `hung_after`.
+                let input_flowing =
+                    i == 0 || now.saturating_duration_since(children[i - 1].last_output) < hung_after / 2;
+                let child = &mut children[i];
+                if child.reap() {
+                    cleanup_needed = true;
+                    child.schedule_restart(now, policy);
+                } else if child.is_running()
+                    && child.uptime(now) > startup_grace
+                    && input_flowing
+                    && now.saturating_duration_since(child.last_output) > hung_after
+                {
+                    child.kill_hung();
+                    cleanup_needed = true;
+                    child.schedule_restart(now, policy);
+                }
+            }
+            if cleanup_needed {
+                scope.remove_dead_nodes()?;
+            }
+            for child in children.iter_mut() {
+                if child.restart_due(now) {
+                    child.spawn(scope)?;
+                    child.restarts += 1;
+                }
+            }
+            if now.saturating_duration_since(last_status) >= Duration::from_millis(100) {
+                last_status = now;
+                status.publish(status_of(children, own_pid, now, hung_after))?;
+            }
+            Ok(())
+        };
+        match step() {
+            Ok(()) => Flow::Continue,
+            Err(e) => {
+                failure = Some(e);
+                Flow::Stop
+            }
+        }
+    })?;
+    failure.map_or(Ok(()), Err)
+}
+
+fn status_of(children: &[Supervised], own_pid: u32, now: Instant, hung_after: Duration) -> SupervisorStatus {
+    let mut status = SupervisorStatus {
+        stage_time_ns: clock::now_ns(),
+        ..SupervisorStatus::default()
+    };
+    let entries = children.iter().map(|c| ProcessStatus {
+        name: fixed_name(c.name),
+        variant: [0; 16],
+        pid: c.pid().unwrap_or(0),
+        restarts: c.restarts,
+        healthy: u32::from(c.is_running() && now.saturating_duration_since(c.last_output) <= hung_after),
+        reserved: 0,
+    });
+    let supervisor = ProcessStatus {
+        name: fixed_name("supervisor"),
+        variant: [0; 16],
+        pid: own_pid,
+        restarts: 0,
+        healthy: 1,
+        reserved: 0,
+    };
+    let mut count = 0;
+    for (slot, entry) in status
+        .processes
+        .iter_mut()
+        .zip(entries.chain(std::iter::once(supervisor)))
+    {
+        *slot = entry;
+        count += 1;
+    }
+    status.process_count = count.min(MAX_PROCESSES) as u32;
+    status
+}

@@ -1,0 +1,212 @@
+//! The supervisor's bookkeeping of its children: spawning, reaping,
+//! restart back-off, and stopping. OS process management, no control.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use hydractl_bus::{RunScope, PREFIX_ENV};
+use hydractl_sim::SupervisorConfig;
+use nix::sys::signal::{kill, Signal};
+use nix::unistd::Pid;
+
+/// The processes of the loop, in pipeline order, with the service each
+/// publishes (its heartbeat) and the one it consumes.
+pub const PIPELINE: [(&str, &str, &str); 6] = [
+    (
+        "plant",
+        hydractl_samples::service::PLANT_READING,
+        hydractl_samples::service::VALVE,
+    ),
+    (
+        "sensor",
+        hydractl_samples::service::SENSOR,
+        hydractl_samples::service::PLANT_READING,
+    ),
+    (
+        "friction",
+        hydractl_samples::service::FRICTION,
+        hydractl_samples::service::SENSOR,
+    ),
+    (
+        "position",
+        hydractl_samples::service::POSITION,
+        hydractl_samples::service::FRICTION,
+    ),
+    (
+        "torque",
+        hydractl_samples::service::TORQUE,
+        hydractl_samples::service::POSITION,
+    ),
+    (
+        "valve",
+        hydractl_samples::service::VALVE,
+        hydractl_samples::service::TORQUE,
+    ),
+];
+
+/// The directory of the running executable, where its sibling binaries are.
+pub fn binary_dir() -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("locating the running executable")?;
+    exe.parent()
+        .map(Path::to_path_buf)
+        .context("the executable has no parent directory")
+}
+
+/// Why a child is down.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DownReason {
+    Exited,
+    Hung,
+}
+
+/// One supervised process.
+#[derive(Debug)]
+pub struct Supervised {
+    pub name: &'static str,
+    binary: PathBuf,
+    config: Option<PathBuf>,
+    child: Option<Child>,
+    pub pids: Vec<u32>,
+    pub restarts: u32,
+    started_at: Instant,
+    backoff: Duration,
+    restart_at: Option<Instant>,
+    /// Last time its output advanced.
+    pub last_output: Instant,
+}
+
+impl Supervised {
+    pub fn new(name: &'static str, binary_dir: &Path, config: Option<PathBuf>) -> Self {
+        let now = Instant::now();
+        Self {
+            name,
+            binary: binary_dir.join(name),
+            config,
+            child: None,
+            pids: Vec::new(),
+            restarts: 0,
+            started_at: now,
+            backoff: Duration::ZERO,
+            restart_at: None,
+            last_output: now,
+        }
+    }
+
+    pub fn pid(&self) -> Option<u32> {
+        self.child.as_ref().map(Child::id)
+    }
+
+    pub fn is_running(&self) -> bool {
+        self.child.is_some()
+    }
+
+    pub fn uptime(&self, now: Instant) -> Duration {
+        now.saturating_duration_since(self.started_at)
+    }
+
+    pub fn spawn(&mut self, scope: &RunScope) -> Result<()> {
+        let mut command = Command::new(&self.binary);
+        if let Some(config) = &self.config {
+            command.arg("--config").arg(config);
+        }
+        let child = command
+            .env(PREFIX_ENV, scope.prefix())
+            .stdin(Stdio::null())
+            .spawn()
+            .with_context(|| format!("starting {}", self.binary.display()))?;
+        self.pids.push(child.id());
+        self.child = Some(child);
+        let now = Instant::now();
+        self.started_at = now;
+        self.last_output = now;
+        self.restart_at = None;
+        Ok(())
+    }
+
+    /// Reaps the child if it exited; true when it did.
+    pub fn reap(&mut self) -> bool {
+        let exited = match &mut self.child {
+            Some(child) => !matches!(child.try_wait(), Ok(None)),
+            None => false,
+        };
+        if exited {
+            self.child = None;
+        }
+        exited
+    }
+
+    /// Kills a hung child with SIGKILL and reaps it.
+    pub fn kill_hung(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+
+    /// Schedules a restart after the back-off, doubling it for next time
+    /// unless the process had been up long enough to count as healthy.
+    pub fn schedule_restart(&mut self, now: Instant, policy: &SupervisorConfig) {
+        let initial = Duration::from_millis(policy.restart_backoff_initial_ms);
+        let max = Duration::from_millis(policy.restart_backoff_max_ms);
+        if self.uptime(now) >= Duration::from_millis(policy.healthy_after_ms) || self.backoff.is_zero() {
+            self.backoff = initial;
+        } else {
+            self.backoff = (self.backoff * 2).min(max);
+        }
+        self.restart_at = Some(now + self.backoff);
+    }
+
+    pub fn restart_due(&self, now: Instant) -> bool {
+        self.child.is_none() && self.restart_at.is_some_and(|at| now >= at)
+    }
+
+    /// Asks the child to stop (SIGTERM).
+    pub fn request_stop(&self) {
+        if let Some(child) = &self.child {
+            let _ = kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM);
+        }
+    }
+
+    /// Waits for a stopping child until `deadline`, then kills it.
+    pub fn finish_stop(&mut self, deadline: Instant) {
+        if let Some(mut child) = self.child.take() {
+            while Instant::now() < deadline {
+                if !matches!(child.try_wait(), Ok(None)) {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_doubles_up_to_the_limit_and_resets_when_healthy() {
+        let policy = SupervisorConfig {
+            restart_backoff_initial_ms: 10,
+            restart_backoff_max_ms: 35,
+            healthy_after_ms: 1000,
+            ..SupervisorConfig::default()
+        };
+        let mut s = Supervised::new("x", Path::new("/nonexistent"), None);
+        let now = s.started_at;
+        s.schedule_restart(now, &policy);
+        assert_eq!(s.backoff, Duration::from_millis(10));
+        s.schedule_restart(now, &policy);
+        assert_eq!(s.backoff, Duration::from_millis(20));
+        s.schedule_restart(now, &policy);
+        assert_eq!(s.backoff, Duration::from_millis(35));
+        s.schedule_restart(now + Duration::from_secs(2), &policy);
+        assert_eq!(s.backoff, Duration::from_millis(10));
+        assert!(!s.restart_due(now));
+        assert!(s.restart_due(now + Duration::from_secs(3)));
+    }
+}

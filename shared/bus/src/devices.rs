@@ -1,0 +1,78 @@
+//! The seam between the control stack and the machine. The sensor process
+//! reads through a [`SensorDevice`] and the valve process drives a
+//! [`ValveDevice`]; the simulated plant implements both over shared memory
+//! now, SocketCAN devices will implement them on the vehicle.
+
+use hydractl_samples::{service, PlantReading};
+
+use crate::{Bus, BusError, Inlet};
+
+/// One reading from the machine's sensors.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceReading {
+    pub seq: u64,
+    pub time_ns: u64,
+    /// rad.
+    pub angle: f64,
+    /// Pa.
+    pub p_a: f64,
+    pub p_b: f64,
+}
+
+/// A sensor bus. The process sleeps on [`SensorDevice::listener`] (a CAN
+/// socket will offer its file descriptor the same way) and then takes the
+/// newest reading.
+pub trait SensorDevice {
+    /// The newest reading not yet taken, if any.
+    fn try_read(&self) -> Result<Option<DeviceReading>, BusError>;
+    /// What to wait on for new readings.
+    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service>;
+}
+
+pub trait ValveDevice {
+    /// Drives the valve with `command` in [-1, 1].
+    fn drive(&mut self, command: f64) -> Result<(), BusError>;
+}
+
+/// The simulated plant's sensor bus.
+pub struct SimulatedSensors {
+    readings: Inlet<PlantReading>,
+}
+
+impl SimulatedSensors {
+    pub fn open(bus: &Bus) -> Result<Self, BusError> {
+        Ok(Self {
+            readings: Inlet::open(bus, service::PLANT_READING, 4)?,
+        })
+    }
+
+    pub fn inlet(&self) -> &Inlet<PlantReading> {
+        &self.readings
+    }
+}
+
+impl SensorDevice for SimulatedSensors {
+    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service> {
+        self.readings.listener()
+    }
+
+    fn try_read(&self) -> Result<Option<DeviceReading>, BusError> {
+        Ok(self.readings.latest()?.map(|r| DeviceReading {
+            seq: r.sensor_seq,
+            time_ns: r.sensor_time_ns,
+            angle: r.angle,
+            p_a: r.p_a,
+            p_b: r.p_b,
+        }))
+    }
+}
+
+/// The simulated plant reads the valve's published state itself, so driving
+/// it needs nothing more; a CAN valve will send a frame here.
+pub struct SimulatedValve;
+
+impl ValveDevice for SimulatedValve {
+    fn drive(&mut self, _command: f64) -> Result<(), BusError> {
+        Ok(())
+    }
+}

@@ -1,0 +1,34 @@
+//! The live stack's plumbing over iceoryx2. Algorithms never see this
+//! crate; the process binaries use it to open their node, publish
+//! (`Outlet`), receive (`Inlet`), wait on several inputs at once
+//! (`run_loop`), and to clean up what a run leaves behind.
+
+pub mod clock;
+pub mod devices;
+mod outlet;
+pub mod placement;
+mod scope;
+mod wait;
+
+pub use outlet::{Inlet, Outlet};
+pub use scope::{quiet_ipc_logging, Bus, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
+pub use wait::{run_loop, Flow, LoopExit, Wake};
+
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    #[error("iceoryx2: {what}: {detail}")]
+    Ipc { what: String, detail: String },
+    #[error("invalid run prefix `{0}`: use letters, digits and `_`, at most 32")]
+    InvalidPrefix(String),
+    #[error("cannot remove {path}: {source}")]
+    Cleanup { path: String, source: std::io::Error },
+}
+
+impl BusError {
+    pub(crate) fn ipc(what: impl Into<String>, detail: impl std::fmt::Debug) -> Self {
+        Self::Ipc {
+            what: what.into(),
+            detail: format!("{detail:?}"),
+        }
+    }
+}

@@ -1,0 +1,166 @@
+use std::fmt::Debug;
+use std::time::Duration;
+
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+
+use crate::{Bus, BusError};
+
+/// The same QoS for every opener, so that creating and opening agree.
+/// Safe overflow (iceoryx2's default) means a slow reader loses its oldest
+/// samples and never blocks a publisher.
+const MAX_BUFFER: usize = 256;
+const MAX_SUBSCRIBERS: usize = 16;
+const MAX_PUBLISHERS: usize = 4;
+const MAX_NODES: usize = 32;
+
+type DataService<T> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+type EventService = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
+
+fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
+    bus: &Bus,
+    name: &str,
+) -> Result<(DataService<T>, EventService), BusError> {
+    let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
+    let data = bus
+        .node()
+        .service_builder(&service_name)
+        .publish_subscribe::<T>()
+        .subscriber_max_buffer_size(MAX_BUFFER)
+        .max_subscribers(MAX_SUBSCRIBERS)
+        .max_publishers(MAX_PUBLISHERS)
+        .max_nodes(MAX_NODES)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| BusError::ipc(format!("opening {name}"), e))?;
+    let event = bus
+        .node()
+        .service_builder(&service_name)
+        .event()
+        .max_nodes(MAX_NODES + 4)
+        .open_or_create()
+        .map_err(|e| BusError::ipc(format!("opening event {name}"), e))?;
+    Ok((data, event))
+}
+
+/// Publishes samples of one service and wakes its listeners.
+pub struct Outlet<T: ZeroCopySend + Debug + Copy + 'static> {
+    name: &'static str,
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
+    pub fn open(bus: &Bus, name: &'static str) -> Result<Self, BusError> {
+        let (data, event) = open_service::<T>(bus, name)?;
+        let publisher = data
+            .publisher_builder()
+            .create()
+            .map_err(|e| BusError::ipc(format!("publisher on {name}"), e))?;
+        let notifier = event
+            .notifier_builder()
+            .create()
+            .map_err(|e| BusError::ipc(format!("notifier on {name}"), e))?;
+        Ok(Self {
+            name,
+            publisher,
+            notifier,
+        })
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    /// Sends one sample zero-copy and notifies. Allocation-free.
+    pub fn publish(&self, value: T) -> Result<(), BusError> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| BusError::ipc(format!("loan on {}", self.name), e))?;
+        sample
+            .write_payload(value)
+            .send()
+            .map_err(|e| BusError::ipc(format!("send on {}", self.name), e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| BusError::ipc(format!("notify on {}", self.name), e))?;
+        Ok(())
+    }
+}
+
+/// Receives samples of one service; its listener wakes a [`crate::run_loop`].
+pub struct Inlet<T: ZeroCopySend + Debug + Copy + 'static> {
+    name: &'static str,
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
+    /// `buffer` samples are kept for this reader: 1–4 for a stage that only
+    /// wants the newest, more for a monitor that wants every one.
+    pub fn open(bus: &Bus, name: &'static str, buffer: usize) -> Result<Self, BusError> {
+        let (data, event) = open_service::<T>(bus, name)?;
+        let subscriber = data
+            .subscriber_builder()
+            .buffer_size(buffer.clamp(1, MAX_BUFFER))
+            .create()
+            .map_err(|e| BusError::ipc(format!("subscriber on {name}"), e))?;
+        let listener = event
+            .listener_builder()
+            .create()
+            .map_err(|e| BusError::ipc(format!("listener on {name}"), e))?;
+        Ok(Self {
+            name,
+            subscriber,
+            listener,
+        })
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    /// The next waiting sample, oldest first.
+    pub fn next(&self) -> Result<Option<T>, BusError> {
+        self.subscriber
+            .receive()
+            .map(|sample| sample.map(|s| *s.payload()))
+            .map_err(|e| BusError::ipc(format!("receive on {}", self.name), e))
+    }
+
+    /// The newest waiting sample, dropping older ones.
+    pub fn latest(&self) -> Result<Option<T>, BusError> {
+        let mut newest = None;
+        while let Some(sample) = self.next()? {
+            newest = Some(sample);
+        }
+        Ok(newest)
+    }
+
+    /// Blocks until a sample arrives or `timeout` passes; the newest sample.
+    pub fn wait_latest(&self, timeout: Duration) -> Result<Option<T>, BusError> {
+        if let Some(sample) = self.latest()? {
+            return Ok(Some(sample));
+        }
+        // A zero timeout becomes a socket receive timeout of zero, which the
+        // kernel reads as "block forever".
+        if timeout < Duration::from_micros(1) {
+            return Ok(None);
+        }
+        match self.listener.timed_wait(|_| {}, timeout) {
+            // Any signal interrupts the sleep; it is the caller's loop that
+            // decides whether a signal ends the run.
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+            Err(e) => return Err(BusError::ipc(format!("wait on {}", self.name), e)),
+        }
+        self.latest()
+    }
+}

@@ -1,0 +1,191 @@
+use std::path::PathBuf;
+
+use iceoryx2::node::{NodeState, NodeView};
+use iceoryx2::prelude::*;
+
+use crate::BusError;
+
+/// Where a run's iceoryx2 resources live: every file in /dev/shm starts with
+/// the prefix, and everything else is under the root. Tests give each run
+/// its own prefix, so runs in parallel never share a service.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunScope {
+    prefix: String,
+}
+
+/// The prefix of `hydractl run` when none is given.
+pub const DEFAULT_PREFIX: &str = "hydractl_";
+/// The environment variable that passes the prefix to child processes.
+pub const PREFIX_ENV: &str = "HYDRACTL_IPC_PREFIX";
+
+impl RunScope {
+    pub fn new(prefix: &str) -> Result<Self, BusError> {
+        let valid =
+            !prefix.is_empty() && prefix.len() <= 32 && prefix.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_');
+        if !valid {
+            return Err(BusError::InvalidPrefix(prefix.to_owned()));
+        }
+        Ok(Self {
+            prefix: prefix.to_owned(),
+        })
+    }
+
+    /// The scope named by [`PREFIX_ENV`], or the default.
+    pub fn from_env() -> Result<Self, BusError> {
+        Self::new(&std::env::var(PREFIX_ENV).unwrap_or_else(|_| DEFAULT_PREFIX.to_owned()))
+    }
+
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    /// The run's own folder under the iceoryx2 folder.
+    pub fn root(&self) -> PathBuf {
+        PathBuf::from(format!("/tmp/iceoryx2/{}/", self.prefix))
+    }
+
+    pub fn config(&self) -> Result<Config, BusError> {
+        let mut config = Config::default();
+        config.global.prefix = FileName::new(self.prefix.as_bytes()).map_err(|e| BusError::ipc("prefix", e))?;
+        let root = self.root();
+        let root = root.to_string_lossy();
+        config
+            .global
+            .set_root_path(&Path::new(root.as_bytes()).map_err(|e| BusError::ipc("root path", e))?);
+        Ok(config)
+    }
+
+    /// Removes the resources of this run's nodes whose processes died
+    /// (crashed or killed), so their services can be opened afresh.
+    /// Returns how many dead nodes were cleaned.
+    pub fn remove_dead_nodes(&self) -> Result<usize, BusError> {
+        let config = self.config()?;
+        let mut cleaned = 0;
+        Node::<ipc::Service>::list(&config, |state| {
+            if let NodeState::Dead(view) = state {
+                if view.try_remove_stale_resources().is_ok() {
+                    cleaned += 1;
+                }
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| BusError::ipc("listing nodes", e))?;
+        Ok(cleaned)
+    }
+
+    /// The names of this run's live nodes.
+    pub fn live_node_names(&self) -> Result<Vec<String>, BusError> {
+        let config = self.config()?;
+        let mut names = Vec::new();
+        Node::<ipc::Service>::list(&config, |state| {
+            if let NodeState::Alive(view) = state {
+                if let Some(details) = view.details() {
+                    names.push(details.name().as_str().to_owned());
+                }
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| BusError::ipc("listing nodes", e))?;
+        Ok(names)
+    }
+
+    /// How many nodes of this run are alive.
+    pub fn live_nodes(&self) -> Result<usize, BusError> {
+        let config = self.config()?;
+        let mut alive = 0;
+        Node::<ipc::Service>::list(&config, |state| {
+            if let NodeState::Alive(_) = state {
+                alive += 1;
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| BusError::ipc("listing nodes", e))?;
+        Ok(alive)
+    }
+
+    /// Deletes every file of this run: its folder and its /dev/shm entries.
+    /// Only for when none of its processes is alive (after a clean stop, or
+    /// over what a killed run left).
+    pub fn remove_all_files(&self) -> Result<(), BusError> {
+        let root = self.root();
+        match std::fs::remove_dir_all(&root) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(source) => {
+                return Err(BusError::Cleanup {
+                    path: root.display().to_string(),
+                    source,
+                })
+            }
+        }
+        for path in self.shm_files() {
+            match std::fs::remove_file(&path) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(source) => {
+                    return Err(BusError::Cleanup {
+                        path: path.display().to_string(),
+                        source,
+                    })
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// This run's files in /dev/shm.
+    pub fn shm_files(&self) -> Vec<PathBuf> {
+        std::fs::read_dir("/dev/shm")
+            .map(|entries| {
+                entries
+                    .filter_map(Result::ok)
+                    .filter(|e| e.file_name().to_string_lossy().starts_with(&self.prefix))
+                    .map(|e| e.path())
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Whether anything of this run is left on disk.
+    pub fn has_files(&self) -> bool {
+        self.root().exists() || !self.shm_files().is_empty()
+    }
+}
+
+/// A process's node on the bus.
+pub struct Bus {
+    node: Node<ipc::Service>,
+    scope: RunScope,
+}
+
+impl Bus {
+    /// Opens the node `name` in `scope`. Signals are left to the caller's
+    /// loop ([`crate::run_loop`] returns on SIGINT and SIGTERM).
+    pub fn open(scope: &RunScope, name: &str) -> Result<Self, BusError> {
+        let config = scope.config()?;
+        let node = NodeBuilder::new()
+            .name(&NodeName::new(name).map_err(|e| BusError::ipc("node name", e))?)
+            .config(&config)
+            .create::<ipc::Service>()
+            .map_err(|e| BusError::ipc(format!("creating node {name}"), e))?;
+        Ok(Self {
+            node,
+            scope: scope.clone(),
+        })
+    }
+
+    pub fn node(&self) -> &Node<ipc::Service> {
+        &self.node
+    }
+
+    pub fn scope(&self) -> &RunScope {
+        &self.scope
+    }
+}
+
+/// Keeps iceoryx2's own logging to errors, unless `IOX2_LOG_LEVEL` asks
+/// for more: its warning on every dead node it cleans up is routine here,
+/// where the supervisor kills and restarts processes by design.
+pub fn quiet_ipc_logging() {
+    set_log_level_from_env_or(LogLevel::Error);
+}

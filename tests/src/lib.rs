@@ -1,0 +1,143 @@
+//! Helpers for tests that start the real processes: where the binaries
+//! are, a run under its own iceoryx2 prefix, and waiting on its status.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use hydractl_bus::{Bus, Inlet, RunScope, PREFIX_ENV};
+use hydractl_samples::{name_str, service, SupervisorStatus, ValveSample};
+
+/// The live stack pins its loop to one CPU; two runs at once would share
+/// it, so the system tests take turns.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+pub fn serial() -> MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// `target/<profile>/`, where cargo puts every binary of the workspace.
+pub fn binary_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable");
+    // target/<profile>/deps/<test> → target/<profile>/
+    exe.parent().and_then(Path::parent).expect("target dir").to_path_buf()
+}
+
+pub fn hydractl() -> Command {
+    Command::new(binary_dir().join("hydractl"))
+}
+
+/// A prefix no other test or run uses.
+pub fn unique_scope(test: &str) -> RunScope {
+    let prefix = format!("t{}_{}_", std::process::id() % 100_000, test);
+    let scope = RunScope::new(&prefix).expect("valid prefix");
+    scope.remove_all_files().expect("clean start");
+    scope
+}
+
+pub fn scratch_dir(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hydractl-system-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("scratch dir");
+    dir
+}
+
+/// Starts `hydractl run` with `args` in `scope`.
+pub fn start_run(scope: &RunScope, args: &[&str]) -> Child {
+    hydractl()
+        .arg("run")
+        .args(args)
+        .env(PREFIX_ENV, scope.prefix())
+        .env("RUST_BACKTRACE", "0")
+        .stdin(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("hydractl run starts")
+}
+
+pub fn run_to_end(scope: &RunScope, args: &[&str]) -> Output {
+    hydractl()
+        .arg("run")
+        .args(args)
+        .env(PREFIX_ENV, scope.prefix())
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("hydractl run runs")
+}
+
+pub fn wait_exit(child: &mut Child, timeout: Duration) -> std::process::ExitStatus {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("did not exit within {timeout:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+pub fn signal(pid: u32, sig: nix::sys::signal::Signal) {
+    let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid as i32), sig);
+}
+
+/// A test's own view of a running stack.
+pub struct Observer {
+    pub status: Inlet<SupervisorStatus>,
+    pub valve: Inlet<ValveSample>,
+    // Dropped last: the ports above live in this node.
+    _bus: Bus,
+}
+
+impl Observer {
+    pub fn open(scope: &RunScope) -> Self {
+        let bus = Bus::open(scope, "observer").expect("node");
+        Self {
+            status: Inlet::open(&bus, service::SUPERVISOR_STATUS, 4).expect("status"),
+            valve: Inlet::open(&bus, service::VALVE, 256).expect("valve"),
+            _bus: bus,
+        }
+    }
+
+    /// The pid of `name`, once the supervisor reports it running.
+    pub fn pid_of(&self, name: &str, timeout: Duration) -> Option<u32> {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(status)) = self.status.wait_latest(Duration::from_millis(50)) {
+                let pid = status
+                    .processes
+                    .iter()
+                    .take(status.process_count as usize)
+                    .find(|p| name_str(&p.name) == name)
+                    .map(|p| p.pid)
+                    .filter(|&pid| pid != 0);
+                if pid.is_some() {
+                    return pid;
+                }
+            }
+        }
+        None
+    }
+
+    /// Waits until valve samples flow healthy (no fault) for `cycles` in a row.
+    pub fn wait_healthy(&self, cycles: usize, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        let mut run = 0;
+        while Instant::now() < deadline {
+            while let Ok(Some(v)) = self.valve.next() {
+                run = if v.faults == 0 { run + 1 } else { 0 };
+                if run >= cycles {
+                    return true;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        false
+    }
+
+    pub fn drain_valve(&self) {
+        while let Ok(Some(_)) = self.valve.next() {}
+    }
+}

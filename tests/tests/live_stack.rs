@@ -1,0 +1,175 @@
+//! The live stack, as real processes over iceoryx2.
+
+use std::time::{Duration, Instant};
+
+use hydractl_samples::fault;
+use hydractl_system_tests::*;
+use nix::sys::signal::Signal;
+
+fn json(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).expect("summary")).expect("json")
+}
+
+#[test]
+fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
+    let _turn = serial();
+    let scope = unique_scope("track");
+    let dir = scratch_dir("track");
+    let (live, offline) = (dir.join("live.json"), dir.join("offline.json"));
+    let out = run_to_end(
+        &scope,
+        &["--duration", "10", "--summary-json", live.to_str().expect("path")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let sim = hydractl()
+        .args(["sim", "--duration", "10", "--controller", "cascade", "--summary-json"])
+        .arg(&offline)
+        .output()
+        .expect("sim runs");
+    assert!(sim.status.success());
+    let (live, offline) = (json(&live), json(&offline));
+    let cycles = live["cycles"].as_u64().expect("cycles");
+    assert!(cycles >= 9_500, "{live}");
+    for key in ["p50", "p99", "p999", "max"] {
+        assert!(
+            live["latency_us"][key].as_f64().is_some_and(|v| v > 0.0),
+            "latency {key}: {live}"
+        );
+    }
+    assert!(live["deadline_misses"].is_u64());
+    let (rms_live, rms_offline) = (
+        live["rms_tracking_error_rad"].as_f64().expect("rms"),
+        offline["rms_tracking_error_rad"].as_f64().expect("rms"),
+    );
+    assert!(
+        (rms_live - rms_offline).abs() <= 0.10 * rms_offline,
+        "live rms {rms_live} vs offline {rms_offline}"
+    );
+    let names: Vec<&str> = live["processes"]
+        .as_array()
+        .expect("processes")
+        .iter()
+        .filter_map(|p| p["name"].as_str())
+        .collect();
+    for name in [
+        "supervisor",
+        "plant",
+        "sensor",
+        "friction",
+        "position",
+        "torque",
+        "valve",
+    ] {
+        assert!(names.contains(&name), "{name} in {names:?}");
+    }
+    assert!(!scope.has_files(), "a clean stop leaves nothing behind");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
+    let _turn = serial();
+    let scope = unique_scope("kill");
+    let mut run = start_run(&scope, &[]);
+    {
+        let observer = Observer::open(&scope);
+        assert!(observer.wait_healthy(200, Duration::from_secs(10)), "the loop starts");
+        for name in ["friction", "position", "torque"] {
+            let pid = observer.pid_of(name, Duration::from_secs(2)).expect("running");
+            observer.drain_valve();
+            let killed = Instant::now();
+            signal(pid, Signal::SIGKILL);
+            // The valve goes neutral, flagged stale, within a few periods.
+            let mut neutral_after = None;
+            while killed.elapsed() < Duration::from_secs(1) && neutral_after.is_none() {
+                while let Ok(Some(v)) = observer.valve.next() {
+                    if v.faults & fault::STALE != 0 && v.command == 0.0 {
+                        neutral_after = Some(killed.elapsed());
+                        break;
+                    }
+                }
+            }
+            let neutral_after = neutral_after.expect("the valve went neutral");
+            assert!(
+                neutral_after < Duration::from_millis(50),
+                "{name}: neutral after {neutral_after:?}"
+            );
+            // The supervisor restarts it and the loop resumes.
+            let deadline = Instant::now() + Duration::from_secs(3);
+            let mut restarted = None;
+            while Instant::now() < deadline && restarted.is_none() {
+                restarted = observer
+                    .pid_of(name, Duration::from_millis(100))
+                    .filter(|&new| new != pid);
+            }
+            assert!(restarted.is_some(), "{name} restarted");
+            assert!(
+                observer.wait_healthy(200, Duration::from_secs(5)),
+                "{name}: the loop resumes"
+            );
+        }
+    }
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run, Duration::from_secs(10)).success());
+    assert!(!scope.has_files(), "nothing left after the stop");
+}
+
+#[test]
+fn ctrl_c_stops_everything_and_leaves_no_files() {
+    let _turn = serial();
+    let scope = unique_scope("ctrlc");
+    let mut run = start_run(&scope, &[]);
+    {
+        let observer = Observer::open(&scope);
+        assert!(observer.wait_healthy(100, Duration::from_secs(10)), "the loop starts");
+    }
+    assert!(scope.has_files());
+    signal(run.id(), Signal::SIGINT);
+    assert!(wait_exit(&mut run, Duration::from_secs(10)).success());
+    assert!(
+        !scope.has_files(),
+        "left: {:?} and {}",
+        scope.shm_files(),
+        scope.root().display()
+    );
+}
+
+#[test]
+fn a_start_over_the_files_of_a_killed_run_works() {
+    let _turn = serial();
+    let scope = unique_scope("stale");
+    let mut run = start_run(&scope, &[]);
+    let mut pids = vec![run.id()];
+    {
+        let observer = Observer::open(&scope);
+        assert!(observer.wait_healthy(100, Duration::from_secs(10)), "the loop starts");
+        for name in [
+            "supervisor",
+            "plant",
+            "sensor",
+            "friction",
+            "position",
+            "torque",
+            "valve",
+        ] {
+            pids.extend(observer.pid_of(name, Duration::from_secs(2)));
+        }
+    }
+    // Kill every process of the run at once, as a crash or power cut would.
+    for &pid in &pids {
+        signal(pid, Signal::SIGKILL);
+    }
+    let _ = run.wait();
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(scope.has_files(), "the killed run left its files");
+    let dir = scratch_dir("stale");
+    let summary = dir.join("summary.json");
+    let out = run_to_end(
+        &scope,
+        &["--duration", "2", "--summary-json", summary.to_str().expect("path")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(json(&summary)["cycles"].as_u64().expect("cycles") > 1_500);
+    assert!(!scope.has_files());
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -1,0 +1,314 @@
+//! `hydractl run`: starts the supervisor (which starts the loop), watches
+//! the loop's samples, shows a live status, and writes the run's summary.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, Inlet, LoopExit, RunScope, PREFIX_ENV};
+use hydractl_samples::{name_str, service, PlantReading, PositionSample, SupervisorStatus, ValveSample};
+use nix::sys::signal::{kill, Signal};
+use nix::unistd::Pid;
+use serde::Serialize;
+
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// Configuration file [default: the built-in config/sim.toml].
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Seconds to run; without it, until Ctrl-C or SIGTERM.
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Write the run's summary as JSON.
+    #[arg(long)]
+    summary_json: Option<PathBuf>,
+}
+
+/// Sensor-to-valve latency, counted in 1 µs bins up to 100 ms: fixed
+/// memory however long the run.
+struct LatencyHistogram {
+    bins: Vec<u64>,
+    count: u64,
+    max_ns: u64,
+}
+
+impl LatencyHistogram {
+    const BINS: usize = 100_000;
+
+    fn new() -> Self {
+        Self {
+            bins: vec![0; Self::BINS + 1],
+            count: 0,
+            max_ns: 0,
+        }
+    }
+
+    fn record(&mut self, ns: u64) {
+        let us = (ns / 1000) as usize;
+        self.bins[us.min(Self::BINS)] += 1;
+        self.count += 1;
+        self.max_ns = self.max_ns.max(ns);
+    }
+
+    /// The quantile in µs (upper edge of its bin).
+    fn quantile_us(&self, q: f64) -> f64 {
+        if self.count == 0 {
+            return f64::NAN;
+        }
+        let target = ((q * self.count as f64).ceil() as u64).max(1);
+        let mut seen = 0;
+        for (us, &n) in self.bins.iter().enumerate() {
+            seen += n;
+            if seen >= target {
+                return (us + 1) as f64;
+            }
+        }
+        self.max_ns as f64 / 1000.0
+    }
+}
+
+#[derive(Serialize)]
+struct LatencySummary {
+    p50: f64,
+    p99: f64,
+    p999: f64,
+    max: f64,
+}
+
+#[derive(Serialize, Clone)]
+struct ProcessSummary {
+    name: String,
+    pids: Vec<u32>,
+    restarts: u32,
+}
+
+#[derive(Serialize)]
+struct RunSummary {
+    duration_s: f64,
+    cycles: u64,
+    deadline_misses: u64,
+    /// Sensor reading to valve command, from the samples' own timestamps.
+    latency_us: LatencySummary,
+    max_abs_tracking_error_rad: f64,
+    rms_tracking_error_rad: f64,
+    /// Valve samples published in neutral with a fault flag.
+    valve_fault_cycles: u64,
+    processes: Vec<ProcessSummary>,
+}
+
+#[derive(Default)]
+struct Tracking {
+    count: u64,
+    sum_squares: f64,
+    max_abs: f64,
+}
+
+pub fn run(args: RunArgs) -> Result<()> {
+    let config = match &args.config {
+        Some(path) => hydractl_sim::Config::load(path)?,
+        None => hydractl_sim::Config::default_sim()?,
+    };
+    hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu);
+    quiet_ipc_logging();
+    let scope = RunScope::from_env()?;
+    // Over a crashed run's leftovers: clean its dead nodes, and its files if
+    // nothing of it is alive.
+    scope.remove_dead_nodes()?;
+    if scope.live_node_names()?.iter().any(|name| name == "supervisor") {
+        bail!(
+            "a run with prefix `{}` is already alive; stop it or set {PREFIX_ENV} to another prefix",
+            scope.prefix()
+        );
+    }
+    if scope.live_nodes()? == 0 {
+        scope.remove_all_files()?;
+    }
+    let dir = std::env::current_exe()?
+        .parent()
+        .map(std::path::Path::to_path_buf)
+        .context("locating the supervisor binary")?;
+    let mut command = Command::new(dir.join("supervisor"));
+    if let Some(config) = &args.config {
+        command.arg("--config").arg(config);
+    }
+    // Its own process group: a terminal's Ctrl-C reaches only us, and we
+    // stop the supervisor, which stops the loop in order.
+    use std::os::unix::process::CommandExt;
+    let mut supervisor = command
+        .env(PREFIX_ENV, scope.prefix())
+        .stdin(Stdio::null())
+        .process_group(0)
+        .spawn()
+        .with_context(|| format!("starting {}", dir.join("supervisor").display()))?;
+    let supervisor_pid = supervisor.id();
+    let outcome = watch(&scope, &args, supervisor_pid);
+    stop_supervisor(&mut supervisor)?;
+    let summary = outcome?;
+    if let Some(path) = &args.summary_json {
+        std::fs::write(path, serde_json::to_string_pretty(&summary)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    crate::emit(&format!(
+        "{} cycles, {} deadline misses, latency p50 {} µs p99 {} µs p99.9 {} µs max {:.0} µs, tracking error rms {:.4} rad max {:.4} rad, {} restart(s)\n",
+        summary.cycles,
+        summary.deadline_misses,
+        summary.latency_us.p50,
+        summary.latency_us.p99,
+        summary.latency_us.p999,
+        summary.latency_us.max,
+        summary.rms_tracking_error_rad,
+        summary.max_abs_tracking_error_rad,
+        summary.processes.iter().map(|p| p.restarts).sum::<u32>()
+    ))
+}
+
+fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSummary> {
+    let bus = Bus::open(scope, "monitor")?;
+    let valve: Inlet<ValveSample> = Inlet::open(&bus, service::VALVE, 256)?;
+    let position: Inlet<PositionSample> = Inlet::open(&bus, service::POSITION, 256)?;
+    let plant: Inlet<PlantReading> = Inlet::open(&bus, service::PLANT_READING, 4)?;
+    let status: Inlet<SupervisorStatus> = Inlet::open(&bus, service::SUPERVISOR_STATUS, 4)?;
+    let started = Instant::now();
+    let end = args.duration.map(|d| started + Duration::from_secs_f64(d.max(0.0)));
+    let live = std::io::stderr().is_terminal();
+    let mut latency = LatencyHistogram::new();
+    let mut tracking = Tracking::default();
+    let mut cycles = 0u64;
+    let mut faults = 0u64;
+    let mut late = 0u64;
+    let mut last_valve_seq: Option<u64> = None;
+    let mut processes: Vec<ProcessSummary> = vec![ProcessSummary {
+        name: "supervisor".into(),
+        pids: vec![supervisor_pid],
+        restarts: 0,
+    }];
+    let mut last_print = Instant::now();
+    let mut failure = None;
+    let exit = run_loop(&[], Some(Duration::from_millis(10)), |_| {
+        let mut step = || -> Result<Flow> {
+            while let Some(v) = valve.next()? {
+                // One command per sensor reading; a neutral published on a
+                // later reading while the chain is broken counts as a cycle too.
+                if last_valve_seq.is_none_or(|last| v.sensor_seq > last) {
+                    cycles += 1;
+                    last_valve_seq = Some(v.sensor_seq);
+                    latency.record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
+                }
+                if v.faults != 0 {
+                    faults += 1;
+                }
+            }
+            while let Some(p) = position.next()? {
+                let e = p.reference_angle - p.angle;
+                tracking.count += 1;
+                tracking.sum_squares += e * e;
+                tracking.max_abs = tracking.max_abs.max(e.abs());
+            }
+            if let Some(p) = plant.latest()? {
+                late = p.late_commands;
+            }
+            if let Some(s) = status.latest()? {
+                merge_status(&mut processes, &s);
+            }
+            let now = Instant::now();
+            if now.saturating_duration_since(last_print) >= Duration::from_millis(500) {
+                last_print = now;
+                let line = format!(
+                    "t {:6.1} s  loop {:5} cycles  latency p50 {:4} µs p99 {:4} µs  error rms {:.4} max {:.4} rad  {}",
+                    now.saturating_duration_since(started).as_secs_f64(),
+                    cycles,
+                    latency.quantile_us(0.5),
+                    latency.quantile_us(0.99),
+                    (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
+                    tracking.max_abs,
+                    processes
+                        .iter()
+                        .map(|p| format!("{} {}", p.name, p.restarts))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                );
+                if live {
+                    eprint!("\r{line}");
+                } else {
+                    eprintln!("{line}");
+                }
+            }
+            Ok(if end.is_some_and(|end| now >= end) {
+                Flow::Stop
+            } else {
+                Flow::Continue
+            })
+        };
+        match step() {
+            Ok(flow) => flow,
+            Err(e) => {
+                failure = Some(e);
+                Flow::Stop
+            }
+        }
+    })?;
+    if live {
+        eprintln!();
+    }
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    let _ = exit == LoopExit::Signal;
+    Ok(RunSummary {
+        duration_s: started.elapsed().as_secs_f64(),
+        cycles,
+        deadline_misses: late,
+        latency_us: LatencySummary {
+            p50: latency.quantile_us(0.5),
+            p99: latency.quantile_us(0.99),
+            p999: latency.quantile_us(0.999),
+            max: latency.max_ns as f64 / 1000.0,
+        },
+        max_abs_tracking_error_rad: tracking.max_abs,
+        rms_tracking_error_rad: (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
+        valve_fault_cycles: faults,
+        processes,
+    })
+}
+
+/// Adds newly seen pids and the restart counts from a status sample.
+fn merge_status(processes: &mut Vec<ProcessSummary>, status: &SupervisorStatus) {
+    for entry in status.processes.iter().take(status.process_count as usize) {
+        let name = name_str(&entry.name);
+        if name == "supervisor" {
+            continue;
+        }
+        let index = match processes.iter().position(|p| p.name == name) {
+            Some(i) => i,
+            None => {
+                processes.push(ProcessSummary {
+                    name: name.to_owned(),
+                    pids: Vec::new(),
+                    restarts: 0,
+                });
+                processes.len() - 1
+            }
+        };
+        let p = &mut processes[index];
+        if entry.pid != 0 && p.pids.last() != Some(&entry.pid) {
+            p.pids.push(entry.pid);
+        }
+        p.restarts = entry.restarts;
+    }
+}
+
+fn stop_supervisor(supervisor: &mut Child) -> Result<()> {
+    let _ = kill(Pid::from_raw(supervisor.id() as i32), Signal::SIGTERM);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline {
+        if supervisor.try_wait()?.is_some() {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    supervisor.kill().context("killing the supervisor")?;
+    supervisor.wait()?;
+    Ok(())
+}
