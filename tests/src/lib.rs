@@ -6,7 +6,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use hydractl_bus::{Bus, Inlet, RunScope, PREFIX_ENV};
+use hydractl_bus::{Bus, Reader, RunScope, PREFIX_ENV};
 use hydractl_samples::{name_str, service, SupervisorStatus, ValveSample};
 
 /// The live stack pins its loop to one CPU; two runs at once would share
@@ -85,8 +85,8 @@ pub fn signal(pid: u32, sig: nix::sys::signal::Signal) {
 
 /// A test's own view of a running stack.
 pub struct Observer {
-    pub status: Inlet<SupervisorStatus>,
-    pub valve: Inlet<ValveSample>,
+    pub status: Reader<SupervisorStatus>,
+    pub valve: Reader<ValveSample>,
     // Dropped last: the ports above live in this node.
     _bus: Bus,
 }
@@ -95,8 +95,8 @@ impl Observer {
     pub fn open(scope: &RunScope) -> Self {
         let bus = Bus::open(scope, "observer").expect("node");
         Self {
-            status: Inlet::open(&bus, service::SUPERVISOR_STATUS, 4).expect("status"),
-            valve: Inlet::open(&bus, service::VALVE, 256).expect("valve"),
+            status: Reader::open(&bus, service::SUPERVISOR_STATUS, 4).expect("status"),
+            valve: Reader::open(&bus, service::VALVE, 256).expect("valve"),
             _bus: bus,
         }
     }
@@ -105,7 +105,8 @@ impl Observer {
     pub fn pid_of(&self, name: &str, timeout: Duration) -> Option<u32> {
         let deadline = Instant::now() + timeout;
         while Instant::now() < deadline {
-            if let Ok(Some(status)) = self.status.wait_latest(Duration::from_millis(50)) {
+            std::thread::sleep(Duration::from_millis(20));
+            if let Ok(Some(status)) = self.status.latest() {
                 let pid = status
                     .processes
                     .iter()

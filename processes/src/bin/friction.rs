@@ -2,7 +2,7 @@
 //! sample, with the previous period's reference velocity and valve command.
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_loop, Flow, Inlet, Outlet};
+use hydractl_bus::{clock, run_single, Flow, Inlet, Outlet, Reader};
 use hydractl_processes::estimate_of;
 use hydractl_samples::{service, FrictionSample, PositionSample, SensorSample, ValveSample};
 use hydractl_sim::stack::FrictionStage;
@@ -12,12 +12,12 @@ fn main() -> Result<()> {
     let bus = &started.bus;
     let mut stage = FrictionStage::new(&started.config)?;
     let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
-    let position: Inlet<PositionSample> = Inlet::open(bus, service::POSITION, 4)?;
-    let valve: Inlet<ValveSample> = Inlet::open(bus, service::VALVE, 4)?;
+    let position: Reader<PositionSample> = Reader::open(bus, service::POSITION, 4)?;
+    let valve: Reader<ValveSample> = Reader::open(bus, service::VALVE, 4)?;
     let out: Outlet<FrictionSample> = Outlet::open(bus, service::FRICTION)?;
     let (mut reference_velocity, mut valve_command) = (0.0, 0.0);
     let mut failure = None;
-    run_loop(&[sensor.listener()], None, |_| {
+    run_single(sensor.listener(), &started.bus, || {
         let mut step = || -> Result<()> {
             if let Some(p) = position.latest()? {
                 reference_velocity = p.reference_velocity;

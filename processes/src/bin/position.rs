@@ -1,7 +1,7 @@
 //! The outer loop and the reference trajectory, on each friction sample.
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_loop, Flow, Inlet, Outlet};
+use hydractl_bus::{clock, run_single, Flow, Inlet, Outlet, Reader};
 use hydractl_processes::{estimate_of, time_of};
 use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample};
 use hydractl_sim::stack::PositionStage;
@@ -11,7 +11,7 @@ fn main() -> Result<()> {
     let started = hydractl_processes::start("position")?;
     let (bus, config) = (&started.bus, &started.config);
     let mut stage = PositionStage::new(config)?;
-    let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
+    let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
     let friction: Inlet<FrictionSample> = Inlet::open(bus, service::FRICTION, 4)?;
     let out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION)?;
     let structure = match stage.structure() {
@@ -24,7 +24,7 @@ fn main() -> Result<()> {
     };
     let mut latest_sensor = SensorSample::default();
     let mut failure = None;
-    run_loop(&[friction.listener()], None, |_| {
+    run_single(friction.listener(), &started.bus, || {
         let mut step = || -> Result<()> {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use hydractl_bus::devices::{SensorDevice, SimulatedSensors};
-use hydractl_bus::{clock, run_loop, Flow, Outlet};
+use hydractl_bus::{clock, run_single, Flow, Outlet};
 use hydractl_plant::RawReading;
 use hydractl_samples::{service, valid, SensorSample};
 use hydractl_sim::stack::SensorStage;
@@ -14,7 +14,7 @@ fn main() -> Result<()> {
     let device = SimulatedSensors::open(&started.bus)?;
     let out: Outlet<SensorSample> = Outlet::open(&started.bus, service::SENSOR)?;
     let mut failure = None;
-    run_loop(&[device.listener()], None, |_| {
+    run_single(device.listener(), &started.bus, || {
         let reading = match device.try_read() {
             Ok(Some(r)) => r,
             Ok(None) => return Flow::Continue,

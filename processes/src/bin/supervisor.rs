@@ -6,7 +6,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_loop, Bus, Flow, Inlet, Outlet, RunScope};
+use hydractl_bus::{clock, run_loop, Bus, Flow, Outlet, Reader, RunScope};
 use hydractl_processes::supervision::{binary_dir, Supervised, PIPELINE};
 use hydractl_samples::{
     fixed_name, service, FrictionSample, PlantReading, PositionSample, ProcessStatus, SensorSample, SupervisorStatus,
@@ -15,23 +15,23 @@ use hydractl_samples::{
 
 /// The newest sequence number seen on each pipeline service.
 struct Heartbeats {
-    plant: Inlet<PlantReading>,
-    sensor: Inlet<SensorSample>,
-    friction: Inlet<FrictionSample>,
-    position: Inlet<PositionSample>,
-    torque: Inlet<TorqueSample>,
-    valve: Inlet<ValveSample>,
+    plant: Reader<PlantReading>,
+    sensor: Reader<SensorSample>,
+    friction: Reader<FrictionSample>,
+    position: Reader<PositionSample>,
+    torque: Reader<TorqueSample>,
+    valve: Reader<ValveSample>,
 }
 
 impl Heartbeats {
     fn open(bus: &Bus) -> Result<Self> {
         Ok(Self {
-            plant: Inlet::open(bus, service::PLANT_READING, 4)?,
-            sensor: Inlet::open(bus, service::SENSOR, 4)?,
-            friction: Inlet::open(bus, service::FRICTION, 4)?,
-            position: Inlet::open(bus, service::POSITION, 4)?,
-            torque: Inlet::open(bus, service::TORQUE, 4)?,
-            valve: Inlet::open(bus, service::VALVE, 4)?,
+            plant: Reader::open(bus, service::PLANT_READING, 4)?,
+            sensor: Reader::open(bus, service::SENSOR, 4)?,
+            friction: Reader::open(bus, service::FRICTION, 4)?,
+            position: Reader::open(bus, service::POSITION, 4)?,
+            torque: Reader::open(bus, service::TORQUE, 4)?,
+            valve: Reader::open(bus, service::VALVE, 4)?,
         })
     }
 

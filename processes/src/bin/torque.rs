@@ -2,7 +2,7 @@
 //! through in position-only control).
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_loop, Flow, Inlet, Outlet};
+use hydractl_bus::{clock, run_single, Flow, Inlet, Outlet, Reader};
 use hydractl_processes::estimate_of;
 use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample, TorqueSample};
 use hydractl_sim::stack::{PositionOutput, TorqueStage};
@@ -12,8 +12,8 @@ fn main() -> Result<()> {
     let started = hydractl_processes::start("torque")?;
     let bus = &started.bus;
     let mut stage = TorqueStage::new(&started.config)?;
-    let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
-    let friction: Inlet<FrictionSample> = Inlet::open(bus, service::FRICTION, 4)?;
+    let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
+    let friction: Reader<FrictionSample> = Reader::open(bus, service::FRICTION, 4)?;
     let position: Inlet<PositionSample> = Inlet::open(bus, service::POSITION, 4)?;
     let out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE)?;
     let variant = match stage.variant() {
@@ -22,7 +22,7 @@ fn main() -> Result<()> {
     };
     let (mut latest_sensor, mut latest_friction) = (SensorSample::default(), FrictionSample::default());
     let mut failure = None;
-    run_loop(&[position.listener()], None, |_| {
+    run_single(position.listener(), &started.bus, || {
         let mut step = || -> Result<()> {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;

@@ -10,9 +10,9 @@ pub mod placement;
 mod scope;
 mod wait;
 
-pub use outlet::{Inlet, Outlet};
+pub use outlet::{Inlet, Outlet, Reader};
 pub use scope::{quiet_ipc_logging, Bus, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
-pub use wait::{run_loop, Flow, LoopExit, Wake};
+pub use wait::{run_loop, run_single, Flow, LoopExit, Wake};
 
 #[derive(Debug, thiserror::Error)]
 pub enum BusError {

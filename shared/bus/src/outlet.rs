@@ -92,40 +92,29 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
     }
 }
 
-/// Receives samples of one service; its listener wakes a [`crate::run_loop`].
-pub struct Inlet<T: ZeroCopySend + Debug + Copy + 'static> {
+/// Reads samples of one service by polling: for a process that looks on
+/// its own tick (supervisor, monitor) or reads a side input when another
+/// input wakes it. It opens no listener, so publishers do not notify it.
+pub struct Reader<T: ZeroCopySend + Debug + Copy + 'static> {
     name: &'static str,
     subscriber: Subscriber<ipc::Service, T, ()>,
-    listener: Listener<ipc::Service>,
 }
 
-impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
-    /// `buffer` samples are kept for this reader: 1–4 for a stage that only
+impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
+    /// `buffer` samples are kept for this reader: 1–4 for one that only
     /// wants the newest, more for a monitor that wants every one.
     pub fn open(bus: &Bus, name: &'static str, buffer: usize) -> Result<Self, BusError> {
-        let (data, event) = open_service::<T>(bus, name)?;
+        let (data, _) = open_service::<T>(bus, name)?;
         let subscriber = data
             .subscriber_builder()
             .buffer_size(buffer.clamp(1, MAX_BUFFER))
             .create()
             .map_err(|e| BusError::ipc(format!("subscriber on {name}"), e))?;
-        let listener = event
-            .listener_builder()
-            .create()
-            .map_err(|e| BusError::ipc(format!("listener on {name}"), e))?;
-        Ok(Self {
-            name,
-            subscriber,
-            listener,
-        })
+        Ok(Self { name, subscriber })
     }
 
     pub fn name(&self) -> &'static str {
         self.name
-    }
-
-    pub fn listener(&self) -> &Listener<ipc::Service> {
-        &self.listener
     }
 
     /// The next waiting sample, oldest first.
@@ -144,6 +133,41 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
         }
         Ok(newest)
     }
+}
+
+/// Receives samples of one service and wakes its process: a [`Reader`] with
+/// a listener for [`crate::run_loop`] or [`crate::run_single`].
+pub struct Inlet<T: ZeroCopySend + Debug + Copy + 'static> {
+    reader: Reader<T>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
+    pub fn open(bus: &Bus, name: &'static str, buffer: usize) -> Result<Self, BusError> {
+        let reader = Reader::open(bus, name, buffer)?;
+        let (_, event) = open_service::<T>(bus, name)?;
+        let listener = event
+            .listener_builder()
+            .create()
+            .map_err(|e| BusError::ipc(format!("listener on {name}"), e))?;
+        Ok(Self { reader, listener })
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.reader.name
+    }
+
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    pub fn next(&self) -> Result<Option<T>, BusError> {
+        self.reader.next()
+    }
+
+    pub fn latest(&self) -> Result<Option<T>, BusError> {
+        self.reader.latest()
+    }
 
     /// Blocks until a sample arrives or `timeout` passes; the newest sample.
     pub fn wait_latest(&self, timeout: Duration) -> Result<Option<T>, BusError> {
@@ -159,7 +183,7 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
             // Any signal interrupts the sleep; it is the caller's loop that
             // decides whether a signal ends the run.
             Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
-            Err(e) => return Err(BusError::ipc(format!("wait on {}", self.name), e)),
+            Err(e) => return Err(BusError::ipc(format!("wait on {}", self.name()), e)),
         }
         self.latest()
     }

@@ -168,10 +168,20 @@ impl Bus {
             .config(&config)
             .create::<ipc::Service>()
             .map_err(|e| BusError::ipc(format!("creating node {name}"), e))?;
-        Ok(Self {
+        let bus = Self {
             node,
             scope: scope.clone(),
-        })
+        };
+        // iceoryx2 installs its SIGINT/SIGTERM handler on the first check;
+        // do it now, so a signal interrupts a blocking wait instead of
+        // killing the process before it cleans up.
+        bus.termination_requested();
+        Ok(bus)
+    }
+
+    /// Whether SIGINT or SIGTERM has arrived.
+    pub fn termination_requested(&self) -> bool {
+        self.node.wait(std::time::Duration::ZERO).is_err()
     }
 
     pub fn node(&self) -> &Node<ipc::Service> {

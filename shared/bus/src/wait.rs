@@ -83,3 +83,31 @@ pub fn run_loop(
         _ => LoopExit::Stopped,
     })
 }
+
+/// The loop of a stage with one input: sleeps in the input listener's own
+/// blocking receive, one system call per wake-up, where a WaitSet adds an
+/// epoll round (measured: p99 of the five-stage chain 203 → 116 µs). Returns
+/// on SIGINT or SIGTERM or when `on_input` stops.
+pub fn run_single(
+    listener: &Listener<ipc::Service>,
+    bus: &crate::Bus,
+    mut on_input: impl FnMut() -> Flow,
+) -> Result<LoopExit, BusError> {
+    use iceoryx2::port::listener::ListenerWaitError;
+    loop {
+        match listener.blocking_wait(|_| {}) {
+            Ok(_) => {
+                if on_input() == Flow::Stop {
+                    return Ok(LoopExit::Stopped);
+                }
+            }
+            // A signal: end on a termination request, go on otherwise.
+            Err(ListenerWaitError::InterruptSignal) => {
+                if bus.termination_requested() {
+                    return Ok(LoopExit::Signal);
+                }
+            }
+            Err(e) => return Err(BusError::ipc("waiting on the input", e)),
+        }
+    }
+}

@@ -186,6 +186,76 @@ pub struct SupervisorStatus {
     pub plant_is_simulation: u32,
 }
 
+/// The latency benchmark's sample: one pass through the five stages, with
+/// the time each hop handed it on.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("hydractl::BenchSample")]
+pub struct BenchSample {
+    pub seq: u64,
+    /// [0]: sent by the driver; [1..=5]: handed on by stage 1..=5.
+    pub stamps_ns: [u64; 6],
+    pub angle: f64,
+    pub p_a: f64,
+    pub p_b: f64,
+    pub velocity: f64,
+    pub torque: f64,
+    pub friction: f64,
+    pub reference_velocity: f64,
+    pub output: f64,
+    pub command: f64,
+}
+
+impl BenchSample {
+    pub const WIRE_SIZE: usize = 8 * 16;
+
+    /// Little-endian bytes, for transports that are not shared memory.
+    pub fn to_bytes(&self) -> [u8; Self::WIRE_SIZE] {
+        let mut out = [0u8; Self::WIRE_SIZE];
+        let words = [self.seq].into_iter().chain(self.stamps_ns).chain(
+            [
+                self.angle,
+                self.p_a,
+                self.p_b,
+                self.velocity,
+                self.torque,
+                self.friction,
+                self.reference_velocity,
+                self.output,
+                self.command,
+            ]
+            .map(f64::to_bits),
+        );
+        for (chunk, word) in out.chunks_exact_mut(8).zip(words) {
+            chunk.copy_from_slice(&word.to_le_bytes());
+        }
+        out
+    }
+
+    pub fn from_bytes(bytes: &[u8; Self::WIRE_SIZE]) -> Self {
+        let mut words = [0u64; 16];
+        for (word, chunk) in words.iter_mut().zip(bytes.chunks_exact(8)) {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(chunk);
+            *word = u64::from_le_bytes(b);
+        }
+        let f = |i: usize| f64::from_bits(words[i]);
+        Self {
+            seq: words[0],
+            stamps_ns: [words[1], words[2], words[3], words[4], words[5], words[6]],
+            angle: f(7),
+            p_a: f(8),
+            p_b: f(9),
+            velocity: f(10),
+            torque: f(11),
+            friction: f(12),
+            reference_velocity: f(13),
+            output: f(14),
+            command: f(15),
+        }
+    }
+}
+
 /// Writes `text` into a fixed NUL-padded field, truncating.
 pub fn fixed_name<const N: usize>(text: &str) -> [u8; N] {
     let mut out = [0u8; N];
@@ -216,6 +286,19 @@ mod tests {
         assert_eq!(size_of::<ValveSample>(), 5 * 8 + 8);
         assert_eq!(size_of::<ProcessStatus>(), 16 + 16 + 16);
         assert_eq!(size_of::<SupervisorStatus>(), 8 + MAX_PROCESSES * 48 + 8);
+    }
+
+    #[test]
+    fn bench_sample_round_trips_through_bytes() {
+        let s = BenchSample {
+            seq: 7,
+            stamps_ns: [1, 2, 3, 4, 5, 6],
+            angle: 0.5,
+            command: -0.25,
+            ..BenchSample::default()
+        };
+        assert_eq!(BenchSample::from_bytes(&s.to_bytes()), s);
+        assert_eq!(size_of::<BenchSample>(), BenchSample::WIRE_SIZE);
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! `hydractl`: the command line of the hydraulic rotator control stack.
 
+mod bench_latency;
 mod run;
 
 use std::path::{Path, PathBuf};
@@ -31,6 +32,9 @@ enum Command {
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// A stage process of `bench latency` (started by it).
+    #[command(hide = true)]
+    BenchStage(bench_latency::StageArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -99,6 +103,9 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
+    /// Sensor-to-valve latency of the five stages over iceoryx2 between
+    /// processes, over UDP loopback between processes, and as function calls.
+    Latency(bench_latency::LatencyArgs),
 }
 
 /// Writes to stdout; a reader that closed the pipe early (`| head`) ends
@@ -120,6 +127,8 @@ fn main() -> Result<()> {
         Command::Effects => emit(&effects_table()),
         Command::Linearize(args) => linearize(args),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
+        Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
+        Command::BenchStage(args) => bench_latency::stage(args),
     }
 }
 

@@ -7,7 +7,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, Inlet, LoopExit, RunScope, PREFIX_ENV};
+use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, RunScope, PREFIX_ENV};
 use hydractl_samples::{name_str, service, PlantReading, PositionSample, SupervisorStatus, ValveSample};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
@@ -166,10 +166,10 @@ pub fn run(args: RunArgs) -> Result<()> {
 
 fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSummary> {
     let bus = Bus::open(scope, "monitor")?;
-    let valve: Inlet<ValveSample> = Inlet::open(&bus, service::VALVE, 256)?;
-    let position: Inlet<PositionSample> = Inlet::open(&bus, service::POSITION, 256)?;
-    let plant: Inlet<PlantReading> = Inlet::open(&bus, service::PLANT_READING, 4)?;
-    let status: Inlet<SupervisorStatus> = Inlet::open(&bus, service::SUPERVISOR_STATUS, 4)?;
+    let valve: Reader<ValveSample> = Reader::open(&bus, service::VALVE, 256)?;
+    let position: Reader<PositionSample> = Reader::open(&bus, service::POSITION, 256)?;
+    let plant: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 4)?;
+    let status: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 4)?;
     let started = Instant::now();
     let end = args.duration.map(|d| started + Duration::from_secs_f64(d.max(0.0)));
     let live = std::io::stderr().is_terminal();
@@ -185,6 +185,9 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         restarts: 0,
     }];
     let mut last_print = Instant::now();
+    let mut cycles_at_last_print = 0u64;
+    let (mut outer_variant, mut inner_variant) = ("?", "?");
+    let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 4)?;
     let mut failure = None;
     let exit = run_loop(&[], Some(Duration::from_millis(10)), |_| {
         let mut step = || -> Result<Flow> {
@@ -201,6 +204,10 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 }
             }
             while let Some(p) = position.next()? {
+                outer_variant = variant_name(p.variant);
+                if p.structure == hydractl_samples::code::STRUCTURE_POSITION {
+                    inner_variant = "bypassed";
+                }
                 let e = p.reference_angle - p.angle;
                 tracking.count += 1;
                 tracking.sum_squares += e * e;
@@ -209,20 +216,31 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
             if let Some(p) = plant.latest()? {
                 late = p.late_commands;
             }
+            if let Some(t) = torque.latest()? {
+                if inner_variant != "bypassed" {
+                    inner_variant = variant_name(t.variant);
+                }
+            }
             if let Some(s) = status.latest()? {
                 merge_status(&mut processes, &s);
             }
             let now = Instant::now();
             if now.saturating_duration_since(last_print) >= Duration::from_millis(500) {
+                let rate =
+                    (cycles - cycles_at_last_print) as f64 / now.saturating_duration_since(last_print).as_secs_f64();
                 last_print = now;
+                cycles_at_last_print = cycles;
                 let line = format!(
-                    "t {:6.1} s  loop {:5} cycles  latency p50 {:4} µs p99 {:4} µs  error rms {:.4} max {:.4} rad  {}",
+                    "t {:6.1} s  loop {:6.0} Hz  misses {}  latency p50 {:4} µs p99 {:4} µs  error rms {:.4} max {:.4} rad  position {} torque {}  restarts: {}",
                     now.saturating_duration_since(started).as_secs_f64(),
-                    cycles,
+                    rate,
+                    late,
                     latency.quantile_us(0.5),
                     latency.quantile_us(0.99),
                     (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
                     tracking.max_abs,
+                    outer_variant,
+                    inner_variant,
                     processes
                         .iter()
                         .map(|p| format!("{} {}", p.name, p.restarts))
@@ -271,6 +289,15 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         valve_fault_cycles: faults,
         processes,
     })
+}
+
+fn variant_name(code: u32) -> &'static str {
+    match code {
+        hydractl_samples::code::VARIANT_PID => "pid",
+        hydractl_samples::code::VARIANT_MFC => "mfc",
+        hydractl_samples::code::VARIANT_HINF => "hinf",
+        _ => "?",
+    }
 }
 
 /// Adds newly seen pids and the restart counts from a status sample.

@@ -1,0 +1,445 @@
+//! `hydractl bench latency`: the five stages (sensor → friction → position
+//! → torque → valve), with their real algorithms, run three ways in one
+//! run: as separate processes over iceoryx2 (as deployed), as separate
+//! processes over UDP loopback sockets, and as plain function calls in one
+//! process (the floor). A driver stands in for the plant: it sends one
+//! reading per millisecond and times its way back from the valve stage.
+
+use std::io::{BufRead, BufReader};
+use std::net::UdpSocket;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use hydractl_bus::{clock, placement, quiet_ipc_logging, run_loop, Bus, Flow, Inlet, Outlet, RunScope, PREFIX_ENV};
+use hydractl_plant::RawReading;
+use hydractl_samples::BenchSample;
+use hydractl_sim::stack::{
+    FrictionStage, PositionOutput, PositionStage, SensorEstimate, SensorStage, TorqueStage, ValveStage,
+};
+use hydractl_sim::Config;
+
+const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
+const SERVICES: [&str; 6] = [
+    "hydractl/bench/0",
+    "hydractl/bench/1",
+    "hydractl/bench/2",
+    "hydractl/bench/3",
+    "hydractl/bench/4",
+    "hydractl/bench/5",
+];
+
+#[derive(clap::Args)]
+pub struct LatencyArgs {
+    /// Seconds per transport.
+    #[arg(long, default_value_t = 10.0)]
+    duration: f64,
+    /// Run only this transport: iceoryx2, udp or calls.
+    #[arg(long)]
+    only: Option<String>,
+}
+
+/// A stage process of the benchmark (started by `bench latency`).
+#[derive(clap::Args)]
+pub struct StageArgs {
+    #[arg(long)]
+    index: usize,
+    #[arg(long)]
+    transport: String,
+    /// UDP: the port of the next hop.
+    #[arg(long)]
+    next_port: Option<u16>,
+}
+
+/// One stage's algorithm, applied to the benchmark sample.
+enum Stage {
+    Sensor(SensorStage),
+    Friction(FrictionStage),
+    Position(PositionStage, f64),
+    Torque(TorqueStage),
+    Valve(ValveStage),
+}
+
+impl Stage {
+    fn new(index: usize, config: &Config) -> Result<Self> {
+        Ok(match index {
+            0 => Stage::Sensor(SensorStage::new(config)?),
+            1 => Stage::Friction(FrictionStage::new(config)?),
+            2 => Stage::Position(PositionStage::new(config)?, config.timing.control_period()),
+            3 => Stage::Torque(TorqueStage::new(config)?),
+            4 => Stage::Valve(ValveStage::new(config)?),
+            _ => bail!("stage index {index} is not 0–4"),
+        })
+    }
+
+    fn apply(&mut self, s: &mut BenchSample) {
+        let estimate = SensorEstimate {
+            angle: s.angle,
+            velocity: s.velocity,
+            p_a: s.p_a,
+            p_b: s.p_b,
+            torque: s.torque,
+        };
+        match self {
+            Stage::Sensor(stage) => {
+                let e = stage.process(&RawReading {
+                    angle: s.angle,
+                    p_a: s.p_a,
+                    p_b: s.p_b,
+                });
+                s.velocity = e.velocity;
+                s.torque = e.torque;
+            }
+            Stage::Friction(stage) => s.friction = stage.process(&estimate, s.reference_velocity, s.command),
+            Stage::Position(stage, period) => {
+                let out = stage.process(s.seq as f64 * *period, &estimate, s.friction);
+                s.reference_velocity = out.reference.velocity;
+                s.output = out.output;
+            }
+            Stage::Torque(stage) => {
+                let out = PositionOutput {
+                    reference: hydractl_sim::Reference {
+                        velocity: s.reference_velocity,
+                        ..Default::default()
+                    },
+                    output: s.output,
+                };
+                s.command = stage.process(&out, &estimate, s.friction);
+            }
+            Stage::Valve(stage) => s.command = stage.process(s.command),
+        }
+    }
+}
+
+/// The reading the driver sends for cycle `seq`: a slow sweep, so the
+/// stages compute real values.
+fn reading(seq: u64) -> BenchSample {
+    let t = seq as f64 * 1e-3;
+    BenchSample {
+        seq,
+        stamps_ns: [clock::now_ns(), 0, 0, 0, 0, 0],
+        angle: 0.2 * (2.0 * t).sin(),
+        p_a: 80e5 + 5e5 * (3.0 * t).sin(),
+        p_b: 80e5,
+        ..BenchSample::default()
+    }
+}
+
+struct Results {
+    name: &'static str,
+    /// End-to-end, ns.
+    total: Vec<u64>,
+    /// Per hop i (driver → stage 1, …, stage 5 → driver), ns.
+    hops: [Vec<u64>; 6],
+    misses: u64,
+}
+
+impl Results {
+    fn new(name: &'static str, capacity: usize) -> Self {
+        Self {
+            name,
+            total: Vec::with_capacity(capacity),
+            hops: std::array::from_fn(|_| Vec::with_capacity(capacity)),
+            misses: 0,
+        }
+    }
+
+    fn record(&mut self, s: &BenchSample, received_ns: u64) {
+        let total = received_ns.saturating_sub(s.stamps_ns[0]);
+        self.total.push(total);
+        if total > 1_000_000 {
+            self.misses += 1;
+        }
+        for i in 0..5 {
+            self.hops[i].push(s.stamps_ns[i + 1].saturating_sub(s.stamps_ns[i]));
+        }
+        self.hops[5].push(received_ns.saturating_sub(s.stamps_ns[5]));
+    }
+}
+
+fn quantile_us(sorted: &[u64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
+    sorted[i] as f64 / 1000.0
+}
+
+pub fn bench(args: LatencyArgs) -> Result<()> {
+    quiet_ipc_logging();
+    let config = Config::default_sim()?;
+    placement::pin_to_loop_cpu(config.timing.loop_cpu);
+    let cycles = (args.duration * 1000.0).round() as u64;
+    let want = |name: &str| args.only.as_deref().is_none_or(|only| only == name);
+    let mut all = Vec::new();
+    if want("iceoryx2") {
+        all.push(run_iceoryx2(&config, cycles)?);
+    }
+    if want("udp") {
+        all.push(run_udp(&config, cycles)?);
+    }
+    if want("calls") {
+        all.push(run_calls(&config, cycles)?);
+    }
+    report(&mut all, args.duration)
+}
+
+fn report(all: &mut [Results], duration: f64) -> Result<()> {
+    let mut text = format!(
+        "bench latency: sensor reading → valve command through 5 stages, 1 kHz, {duration} s per transport, loop pinned to one CPU\n\n{:<10} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
+        "transport", "p50 µs", "p99 µs", "p99.9 µs", "max µs", "misses >1ms"
+    );
+    for r in all.iter_mut() {
+        r.total.sort_unstable();
+        text += &format!(
+            "{:<10} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>12}\n",
+            r.name,
+            quantile_us(&r.total, 0.5),
+            quantile_us(&r.total, 0.99),
+            quantile_us(&r.total, 0.999),
+            quantile_us(&r.total, 1.0),
+            r.misses
+        );
+    }
+    let find = |name: &str| all.iter().find(|r| r.name == name);
+    if let (Some(iox), Some(udp)) = (find("iceoryx2"), find("udp")) {
+        text += &format!(
+            "\niceoryx2 / udp: p50 {:.2}, p99 {:.2}\n",
+            quantile_us(&iox.total, 0.5) / quantile_us(&udp.total, 0.5),
+            quantile_us(&iox.total, 0.99) / quantile_us(&udp.total, 0.99)
+        );
+    }
+    if let (Some(iox), Some(calls)) = (find("iceoryx2"), find("calls")) {
+        text += &format!(
+            "iceoryx2 / calls: p50 {:.1}, p99 {:.1}\n",
+            quantile_us(&iox.total, 0.5) / quantile_us(&calls.total, 0.5),
+            quantile_us(&iox.total, 0.99) / quantile_us(&calls.total, 0.99)
+        );
+    }
+    text += "\nper hop, p50 / p99 µs (driver → sensor → friction → position → torque → valve → driver):\n";
+    for r in all.iter_mut() {
+        let hops: Vec<String> = r
+            .hops
+            .iter_mut()
+            .map(|h| {
+                h.sort_unstable();
+                format!("{:.1}/{:.1}", quantile_us(h, 0.5), quantile_us(h, 0.99))
+            })
+            .collect();
+        text += &format!("{:<10} {}\n", r.name, hops.join("  "));
+    }
+    crate::emit(&text)
+}
+
+fn spawn_stage(index: usize, transport: &str, next_port: Option<u16>, scope: Option<&RunScope>) -> Result<Child> {
+    let mut command = Command::new(std::env::current_exe()?);
+    command
+        .args(["bench-stage", "--index", &index.to_string(), "--transport", transport])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped());
+    if let Some(port) = next_port {
+        command.args(["--next-port", &port.to_string()]);
+    }
+    if let Some(scope) = scope {
+        command.env(PREFIX_ENV, scope.prefix());
+    }
+    command.spawn().context("starting a bench stage")
+}
+
+/// Waits for a stage's "ready" line (UDP stages print their port on it).
+fn ready_line(child: &mut Child) -> Result<String> {
+    let stdout = child.stdout.take().context("stage stdout")?;
+    let mut line = String::new();
+    BufReader::new(stdout).read_line(&mut line)?;
+    if line.is_empty() {
+        bail!("a bench stage exited before it was ready");
+    }
+    Ok(line.trim().to_owned())
+}
+
+fn stop(children: &mut [Child]) {
+    for child in children.iter() {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(child.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+    }
+    for child in children.iter_mut() {
+        let _ = child.wait();
+    }
+}
+
+fn run_iceoryx2(config: &Config, cycles: u64) -> Result<Results> {
+    let scope = RunScope::new(&format!("hbench{}_", std::process::id() % 100_000))?;
+    scope.remove_all_files()?;
+    let result = (|| -> Result<Results> {
+        let bus = Bus::open(&scope, "bench-driver")?;
+        let first: Outlet<BenchSample> = Outlet::open(&bus, SERVICES[0])?;
+        let last: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[5], 4)?;
+        let mut children = Vec::new();
+        for index in 0..5 {
+            let mut child = spawn_stage(index, "iceoryx2", None, Some(&scope))?;
+            ready_line(&mut child)?;
+            children.push(child);
+        }
+        let results = drive(cycles, "iceoryx2", config, |s| {
+            first.publish(*s)?;
+            let deadline = Instant::now() + Duration::from_millis(50);
+            while Instant::now() < deadline {
+                if let Some(back) = last.wait_latest(deadline.saturating_duration_since(Instant::now()))? {
+                    if back.seq == s.seq {
+                        return Ok(Some(back));
+                    }
+                }
+            }
+            Ok(None)
+        });
+        stop(&mut children);
+        results
+    })();
+    let _ = scope.remove_dead_nodes();
+    scope.remove_all_files()?;
+    result
+}
+
+fn run_udp(config: &Config, cycles: u64) -> Result<Results> {
+    let back = UdpSocket::bind("127.0.0.1:0")?;
+    back.set_read_timeout(Some(Duration::from_millis(50)))?;
+    let mut next = back.local_addr()?.port();
+    let mut children = Vec::new();
+    // Last stage first: each needs the next hop's port.
+    for index in (0..5).rev() {
+        let mut child = spawn_stage(index, "udp", Some(next), None)?;
+        next = ready_line(&mut child)?.parse().context("a UDP stage's port")?;
+        children.push(child);
+    }
+    let out = UdpSocket::bind("127.0.0.1:0")?;
+    out.connect(("127.0.0.1", next))?;
+    let results = drive(cycles, "udp", config, |s| {
+        out.send(&s.to_bytes())?;
+        let mut buf = [0u8; BenchSample::WIRE_SIZE];
+        loop {
+            match back.recv(&mut buf) {
+                Ok(n) if n == BenchSample::WIRE_SIZE => {
+                    let sample = BenchSample::from_bytes(&buf);
+                    if sample.seq == s.seq {
+                        return Ok(Some(sample));
+                    }
+                }
+                Ok(_) => {}
+                Err(_) => return Ok(None),
+            }
+        }
+    });
+    stop(&mut children);
+    results
+}
+
+fn run_calls(config: &Config, cycles: u64) -> Result<Results> {
+    let mut stages: Vec<Stage> = (0..5).map(|i| Stage::new(i, config)).collect::<Result<_>>()?;
+    drive(cycles, "calls", config, |s| {
+        let mut sample = *s;
+        for (i, stage) in stages.iter_mut().enumerate() {
+            stage.apply(&mut sample);
+            sample.stamps_ns[i + 1] = clock::now_ns();
+        }
+        Ok(Some(sample))
+    })
+}
+
+/// Sends one reading per millisecond (paced, as the plant does) and records
+/// each answer's latency.
+fn drive(
+    cycles: u64,
+    name: &'static str,
+    config: &Config,
+    mut round_trip: impl FnMut(&BenchSample) -> Result<Option<BenchSample>>,
+) -> Result<Results> {
+    let period = Duration::from_secs_f64(config.timing.control_period());
+    let mut results = Results::new(name, cycles as usize);
+    // Let every stage open its ports and settle.
+    for seq in 0..200 {
+        round_trip(&reading(seq))?;
+        std::thread::sleep(period);
+    }
+    let mut next = Instant::now();
+    for seq in 200..200 + cycles {
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+        next += period;
+        let sent = reading(seq);
+        match round_trip(&sent)? {
+            Some(back) => results.record(&back, clock::now_ns()),
+            None => results.misses += 1,
+        }
+        if Instant::now() > next + period * 10 {
+            next = Instant::now();
+        }
+    }
+    Ok(results)
+}
+
+/// A stage process of the benchmark.
+pub fn stage(args: StageArgs) -> Result<()> {
+    quiet_ipc_logging();
+    let config = Config::default_sim()?;
+    placement::pin_to_loop_cpu(config.timing.loop_cpu);
+    let mut stage = Stage::new(args.index, &config)?;
+    let stamp = args.index + 1;
+    match args.transport.as_str() {
+        "iceoryx2" => {
+            let scope = RunScope::from_env()?;
+            let bus = Bus::open(&scope, &format!("bench-{}", STAGES[args.index]))?;
+            let input: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[args.index], 4)?;
+            let output: Outlet<BenchSample> = Outlet::open(&bus, SERVICES[args.index + 1])?;
+            crate::emit("ready\n")?;
+            let mut failure = None;
+            let mut on_input = || {
+                let mut step = || -> Result<()> {
+                    while let Some(mut s) = input.next()? {
+                        stage.apply(&mut s);
+                        s.stamps_ns[stamp] = clock::now_ns();
+                        output.publish(s)?;
+                    }
+                    Ok(())
+                };
+                match step() {
+                    Ok(()) => Flow::Continue,
+                    Err(e) => {
+                        failure = Some(e);
+                        Flow::Stop
+                    }
+                }
+            };
+            if std::env::var("HYDRACTL_BENCH_WAITSET").is_ok() {
+                run_loop(&[input.listener()], None, |_| on_input())?;
+            } else {
+                hydractl_bus::run_single(input.listener(), &bus, &mut on_input)?;
+            }
+            failure.map_or(Ok(()), Err)
+        }
+        "udp" => {
+            let socket = UdpSocket::bind("127.0.0.1:0")?;
+            let next = args.next_port.context("--next-port is needed for udp")?;
+            socket.connect(("127.0.0.1", next))?;
+            let input = UdpSocket::bind("127.0.0.1:0")?;
+            crate::emit(&format!("{}\n", input.local_addr()?.port()))?;
+            let mut buf = [0u8; BenchSample::WIRE_SIZE];
+            loop {
+                let n = match input.recv(&mut buf) {
+                    Ok(n) => n,
+                    // SIGTERM ends the benchmark's stages.
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => return Ok(()),
+                    Err(e) => return Err(e.into()),
+                };
+                if n != BenchSample::WIRE_SIZE {
+                    continue;
+                }
+                let mut s = BenchSample::from_bytes(&buf);
+                stage.apply(&mut s);
+                s.stamps_ns[stamp] = clock::now_ns();
+                socket.send(&s.to_bytes())?;
+            }
+        }
+        other => bail!("unknown transport `{other}`: iceoryx2 or udp"),
+    }
+}
