@@ -17,6 +17,48 @@ pub struct ProcessArgs {
     /// Configuration file [default: the built-in config/sim.toml].
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Plant only: resume from the loop's last reading,
+    /// `SEQ,ANGLE_RAD,P_A_PA,P_B_PA` (the supervisor passes it on a restart).
+    #[arg(long, value_parser = parse_resume)]
+    pub resume: Option<Resume>,
+}
+
+/// Where a restarted plant resumes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Resume {
+    pub seq: u64,
+    pub angle: f64,
+    pub p_a: f64,
+    pub p_b: f64,
+}
+
+impl Resume {
+    pub fn to_arg(&self) -> String {
+        format!("{},{},{},{}", self.seq, self.angle, self.p_a, self.p_b)
+    }
+}
+
+fn parse_resume(text: &str) -> Result<Resume, String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let [seq, angle, p_a, p_b] = parts.as_slice() else {
+        return Err(format!("`{text}` is not SEQ,ANGLE,P_A,P_B"));
+    };
+    let number = |name: &str, v: &str| -> Result<f64, String> {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("{name} `{v}` is not a finite number"))
+    };
+    Ok(Resume {
+        seq: seq
+            .trim()
+            .parse()
+            .map_err(|_| format!("SEQ `{seq}` is not a whole number"))?,
+        angle: number("ANGLE", angle)?,
+        p_a: number("P_A", p_a)?,
+        p_b: number("P_B", p_b)?,
+    })
 }
 
 pub struct Started {
@@ -28,11 +70,17 @@ pub struct Started {
 /// Parses the arguments, loads the config and opens the node `name`.
 pub fn start(name: &str) -> Result<Started> {
     let args = ProcessArgs::parse();
-    let config = load_config(args.config.as_ref())?;
-    if name == "supervisor" {
-        placement::keep_off_loop_cpu(config.timing.loop_cpu);
+    // Die with the parent (the supervisor, or `hydractl run` for the
+    // supervisor): a killed parent must not leave the loop running.
+    nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).context("setting the parent-death signal")?;
+    let config = Config::load_or_default(args.config.as_deref())?;
+    let placed = if name == "supervisor" {
+        placement::keep_off_loop_cpu(config.timing.loop_cpu)
     } else {
-        placement::pin_to_loop_cpu(config.timing.loop_cpu);
+        placement::pin_to_loop_cpu(config.timing.loop_cpu)
+    };
+    if let Err(e) = placed {
+        eprintln!("{name}: {e}");
     }
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
@@ -40,11 +88,16 @@ pub fn start(name: &str) -> Result<Started> {
     Ok(Started { config, bus, args })
 }
 
-pub fn load_config(path: Option<&PathBuf>) -> Result<Config> {
-    Ok(match path {
-        Some(path) => Config::load(path)?,
-        None => Config::default_sim()?,
-    })
+/// Runs one stage step inside a loop callback: an error stops the loop and
+/// is kept for the process to return.
+pub fn guarded(failure: &mut Option<anyhow::Error>, step: impl FnOnce() -> Result<()>) -> hydractl_bus::Flow {
+    match step() {
+        Ok(()) => hydractl_bus::Flow::Continue,
+        Err(e) => {
+            *failure = Some(e);
+            hydractl_bus::Flow::Stop
+        }
+    }
 }
 
 /// The trajectory's time for a sensor sequence number: the loop's own
@@ -61,5 +114,24 @@ pub fn estimate_of(s: &SensorSample) -> SensorEstimate {
         p_a: s.p_a,
         p_b: s.p_b,
         torque: s.torque,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resume_round_trips_and_rejects_garbage() {
+        let r = Resume {
+            seq: 42,
+            angle: -0.25,
+            p_a: 8e6,
+            p_b: 7.5e6,
+        };
+        assert_eq!(parse_resume(&r.to_arg()), Ok(r));
+        assert!(parse_resume("1,2,3").is_err());
+        assert!(parse_resume("x,0,0,0").is_err());
+        assert!(parse_resume("1,NaN,0,0").is_err());
     }
 }

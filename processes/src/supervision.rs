@@ -75,6 +75,10 @@ pub struct Supervised {
     restart_at: Option<Instant>,
     /// Last time its output advanced.
     pub last_output: Instant,
+    /// When its input last started flowing again after a pause: a hang is
+    /// counted from here too, so a stage whose input was gone is not
+    /// declared hung the moment the input returns.
+    pub input_resumed: Instant,
 }
 
 impl Supervised {
@@ -91,6 +95,7 @@ impl Supervised {
             backoff: Duration::ZERO,
             restart_at: None,
             last_output: now,
+            input_resumed: now,
         }
     }
 
@@ -106,11 +111,12 @@ impl Supervised {
         now.saturating_duration_since(self.started_at)
     }
 
-    pub fn spawn(&mut self, scope: &RunScope) -> Result<()> {
+    pub fn spawn(&mut self, scope: &RunScope, extra_args: &[String]) -> Result<()> {
         let mut command = Command::new(&self.binary);
         if let Some(config) = &self.config {
             command.arg("--config").arg(config);
         }
+        command.args(extra_args);
         let child = command
             .env(PREFIX_ENV, scope.prefix())
             .stdin(Stdio::null())
@@ -125,10 +131,11 @@ impl Supervised {
         Ok(())
     }
 
-    /// Reaps the child if it exited; true when it did.
+    /// Reaps the child if it exited; true when it did. An error from the
+    /// wait says nothing about the child, so it counts as still running.
     pub fn reap(&mut self) -> bool {
         let exited = match &mut self.child {
-            Some(child) => !matches!(child.try_wait(), Ok(None)),
+            Some(child) => matches!(child.try_wait(), Ok(Some(_))),
             None => false,
         };
         if exited {
@@ -173,11 +180,22 @@ impl Supervised {
     pub fn finish_stop(&mut self, deadline: Instant) {
         if let Some(mut child) = self.child.take() {
             while Instant::now() < deadline {
-                if !matches!(child.try_wait(), Ok(None)) {
+                if matches!(child.try_wait(), Ok(Some(_))) {
                     return;
                 }
                 std::thread::sleep(Duration::from_millis(2));
             }
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// A supervisor that unwinds (an error, a panic) must not leave its
+/// children running.
+impl Drop for Supervised {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
             let _ = child.kill();
             let _ = child.wait();
         }

@@ -2,7 +2,7 @@
 //! sample, with the previous period's reference velocity and valve command.
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_single, Flow, Inlet, Outlet, Reader};
+use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_processes::estimate_of;
 use hydractl_samples::{service, FrictionSample, PositionSample, SensorSample, ValveSample};
 use hydractl_sim::stack::FrictionStage;
@@ -18,7 +18,7 @@ fn main() -> Result<()> {
     let (mut reference_velocity, mut valve_command) = (0.0, 0.0);
     let mut failure = None;
     run_single(sensor.listener(), &started.bus, || {
-        let mut step = || -> Result<()> {
+        hydractl_processes::guarded(&mut failure, || {
             if let Some(p) = position.latest()? {
                 reference_velocity = p.reference_velocity;
             }
@@ -35,14 +35,7 @@ fn main() -> Result<()> {
                 blended_velocity: stage.blended_velocity(),
             })?;
             Ok(())
-        };
-        match step() {
-            Ok(()) => Flow::Continue,
-            Err(e) => {
-                failure = Some(e);
-                Flow::Stop
-            }
-        }
+        })
     })?;
     failure.map_or(Ok(()), Err)
 }

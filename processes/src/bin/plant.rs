@@ -18,6 +18,20 @@ fn main() -> Result<()> {
     let config = &started.config;
     let (mut plant, mut sensors) = build_plant(config, &[])?;
     let readings: Outlet<PlantReading> = Outlet::open(&started.bus, service::PLANT_READING)?;
+    // A restarted plant resumes from what the loop last saw of it: its
+    // sequence goes on (the reference is a function of it) and its state
+    // starts from the last reading, at rest.
+    let mut seq = 0u64;
+    if let Some(resume) = started.args.resume {
+        seq = resume.seq + 1;
+        let mut state = plant.state();
+        state.angle = resume.angle;
+        state.load_angle = resume.angle;
+        state.p_a = resume.p_a;
+        state.p_b = resume.p_b;
+        plant.reset_to(state);
+        sensors.home(resume.angle);
+    }
     let valve: Inlet<ValveSample> = Inlet::open(&started.bus, service::VALVE, 8)?;
     let period = Duration::from_secs_f64(config.timing.control_period());
     let policy = config.timing.stall_policy;
@@ -33,7 +47,6 @@ fn main() -> Result<()> {
     let mut late_commands = 0u64;
     let mut loop_running = false;
     let mut next_tick = Instant::now();
-    let mut seq = 0u64;
     loop {
         // Pace: sleep until this period starts; a signal ends the run.
         if node.wait(next_tick.saturating_duration_since(Instant::now())).is_err() {

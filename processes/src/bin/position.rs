@@ -1,7 +1,7 @@
 //! The outer loop and the reference trajectory, on each friction sample.
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_single, Flow, Inlet, Outlet, Reader};
+use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_processes::{estimate_of, time_of};
 use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample};
 use hydractl_sim::stack::PositionStage;
@@ -25,7 +25,7 @@ fn main() -> Result<()> {
     let mut latest_sensor = SensorSample::default();
     let mut failure = None;
     run_single(friction.listener(), &started.bus, || {
-        let mut step = || -> Result<()> {
+        hydractl_processes::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;
             }
@@ -48,14 +48,7 @@ fn main() -> Result<()> {
                 variant,
             })?;
             Ok(())
-        };
-        match step() {
-            Ok(()) => Flow::Continue,
-            Err(e) => {
-                failure = Some(e);
-                Flow::Stop
-            }
-        }
+        })
     })?;
     failure.map_or(Ok(()), Err)
 }

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use hydractl_bus::devices::{SensorDevice, SimulatedSensors};
-use hydractl_bus::{clock, run_single, Flow, Outlet};
+use hydractl_bus::{clock, run_single, Outlet};
 use hydractl_plant::RawReading;
 use hydractl_samples::{service, valid, SensorSample};
 use hydractl_sim::stack::SensorStage;
@@ -15,51 +15,39 @@ fn main() -> Result<()> {
     let out: Outlet<SensorSample> = Outlet::open(&started.bus, service::SENSOR)?;
     let mut failure = None;
     run_single(device.listener(), &started.bus, || {
-        let reading = match device.try_read() {
-            Ok(Some(r)) => r,
-            Ok(None) => return Flow::Continue,
-            Err(e) => {
-                failure = Some(e);
-                return Flow::Stop;
+        hydractl_processes::guarded(&mut failure, || {
+            let Some(reading) = device.try_read()? else {
+                return Ok(());
+            };
+            let mut flags = 0;
+            if reading.angle.is_finite() {
+                flags |= valid::ANGLE;
             }
-        };
-        let mut flags = 0;
-        if reading.angle.is_finite() {
-            flags |= valid::ANGLE;
-        }
-        if reading.p_a.is_finite() {
-            flags |= valid::PRESSURE_A;
-        }
-        if reading.p_b.is_finite() {
-            flags |= valid::PRESSURE_B;
-        }
-        let estimate = stage.process(&RawReading {
-            angle: reading.angle,
-            p_a: reading.p_a,
-            p_b: reading.p_b,
-        });
-        let sample = SensorSample {
-            sensor_seq: reading.seq,
-            sensor_time_ns: reading.time_ns,
-            stage_time_ns: clock::now_ns(),
-            angle: estimate.angle,
-            velocity: estimate.velocity,
-            p_a: estimate.p_a,
-            p_b: estimate.p_b,
-            torque: estimate.torque,
-            valid: flags,
-            reserved: 0,
-        };
-        match out.publish(sample) {
-            Ok(()) => Flow::Continue,
-            Err(e) => {
-                failure = Some(e);
-                Flow::Stop
+            if reading.p_a.is_finite() {
+                flags |= valid::PRESSURE_A;
             }
-        }
+            if reading.p_b.is_finite() {
+                flags |= valid::PRESSURE_B;
+            }
+            let estimate = stage.process(&RawReading {
+                angle: reading.angle,
+                p_a: reading.p_a,
+                p_b: reading.p_b,
+            });
+            out.publish(SensorSample {
+                sensor_seq: reading.seq,
+                sensor_time_ns: reading.time_ns,
+                stage_time_ns: clock::now_ns(),
+                angle: estimate.angle,
+                velocity: estimate.velocity,
+                p_a: estimate.p_a,
+                p_b: estimate.p_b,
+                torque: estimate.torque,
+                valid: flags,
+                reserved: 0,
+            })?;
+            Ok(())
+        })
     })?;
-    match failure {
-        Some(e) => Err(e.into()),
-        None => Ok(()),
-    }
+    failure.map_or(Ok(()), Err)
 }

@@ -36,10 +36,14 @@ impl Heartbeats {
     }
 
     /// Which of the pipeline's outputs advanced since the last call, in
-    /// [`PIPELINE`] order.
-    fn advanced(&self) -> Result<[bool; 6]> {
+    /// [`PIPELINE`] order; keeps the plant's last reading for a restart.
+    fn advanced(&self, last_reading: &mut Option<PlantReading>) -> Result<[bool; 6]> {
+        let reading = self.plant.latest()?;
+        if reading.is_some() {
+            *last_reading = reading;
+        }
         Ok([
-            self.plant.latest()?.is_some(),
+            reading.is_some(),
             self.sensor.latest()?.is_some(),
             self.friction.latest()?.is_some(),
             self.position.latest()?.is_some(),
@@ -53,8 +57,8 @@ fn main() -> Result<()> {
     let started = hydractl_processes::start("supervisor")?;
     let scope = started.bus.scope().clone();
     let policy = started.config.supervisor.clone();
-    // Over what a crashed run left: its dead nodes, and its files when
-    // nothing of it is alive but us.
+    // Over what a crashed run left: its dead nodes (its files, when nothing
+    // of it was alive, `hydractl run` removed before starting us).
     scope.remove_dead_nodes()?;
     let dir = binary_dir()?;
     let mut children: Vec<Supervised> = PIPELINE
@@ -72,11 +76,9 @@ fn main() -> Result<()> {
         child.finish_stop(deadline);
     }
     drop(started.bus);
-    scope.remove_dead_nodes()?;
-    if scope.live_nodes()? == 0 {
-        scope.remove_all_files()?;
-    }
-    outcome
+    // Clean up whatever the outcome; report the outcome's error first.
+    let cleaned = scope.clean_stale();
+    outcome.and(cleaned.map_err(Into::into))
 }
 
 fn supervise(
@@ -86,8 +88,9 @@ fn supervise(
     children: &mut [Supervised],
 ) -> Result<()> {
     for child in children.iter_mut() {
-        child.spawn(scope)?;
+        child.spawn(scope, &[])?;
     }
+    let mut last_reading: Option<PlantReading> = None;
     let heartbeats = Heartbeats::open(bus)?;
     let status: Outlet<SupervisorStatus> = Outlet::open(bus, service::SUPERVISOR_STATUS)?;
     let hung_after = Duration::from_millis(policy.hung_after_ms);
@@ -99,10 +102,19 @@ fn supervise(
     run_loop(&[], Some(Duration::from_millis(5)), |_| {
         let mut step = || -> Result<()> {
             let now = Instant::now();
-            let advanced = heartbeats.advanced()?;
-            for (child, &moved) in children.iter_mut().zip(&advanced) {
-                if moved {
-                    child.last_output = now;
+            let advanced = heartbeats.advanced(&mut last_reading)?;
+            // Whether each output had paused, before this round's news.
+            let mut paused = [false; PIPELINE.len()];
+            for (p, c) in paused.iter_mut().zip(children.iter()) {
+                *p = now.saturating_duration_since(c.last_output) >= hung_after / 2;
+            }
+            for i in 0..children.len() {
+                if advanced[i] {
+                    children[i].last_output = now;
+                }
+                // Input back after a pause: measure a hang from now on.
+                if i > 0 && advanced[i - 1] && paused[i - 1] {
+                    children[i].input_resumed = now;
                 }
             }
             let mut cleanup_needed = false;
@@ -112,13 +124,14 @@ fn supervise(
                 let input_flowing =
                     i == 0 || now.saturating_duration_since(children[i - 1].last_output) < hung_after / 2;
                 let child = &mut children[i];
+                let quiet_since = child.last_output.max(child.input_resumed);
                 if child.reap() {
                     cleanup_needed = true;
                     child.schedule_restart(now, policy);
                 } else if child.is_running()
                     && child.uptime(now) > startup_grace
                     && input_flowing
-                    && now.saturating_duration_since(child.last_output) > hung_after
+                    && now.saturating_duration_since(quiet_since) > hung_after
                 {
                     child.kill_hung();
                     cleanup_needed = true;
@@ -130,7 +143,21 @@ fn supervise(
             }
             for child in children.iter_mut() {
                 if child.restart_due(now) {
-                    child.spawn(scope)?;
+                    // A new plant goes on from the loop's last reading.
+                    let args: Vec<String> = match (child.name, last_reading) {
+                        ("plant", Some(r)) => vec![
+                            "--resume".into(),
+                            hydractl_processes::Resume {
+                                seq: r.sensor_seq,
+                                angle: r.true_angle,
+                                p_a: r.p_a,
+                                p_b: r.p_b,
+                            }
+                            .to_arg(),
+                        ],
+                        _ => Vec::new(),
+                    };
+                    child.spawn(scope, &args)?;
                     child.restarts += 1;
                 }
             }

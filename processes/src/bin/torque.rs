@@ -2,7 +2,7 @@
 //! through in position-only control).
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_single, Flow, Inlet, Outlet, Reader};
+use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_processes::estimate_of;
 use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample, TorqueSample};
 use hydractl_sim::stack::{PositionOutput, TorqueStage};
@@ -23,7 +23,7 @@ fn main() -> Result<()> {
     let (mut latest_sensor, mut latest_friction) = (SensorSample::default(), FrictionSample::default());
     let mut failure = None;
     run_single(position.listener(), &started.bus, || {
-        let mut step = || -> Result<()> {
+        hydractl_processes::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;
             }
@@ -51,14 +51,7 @@ fn main() -> Result<()> {
                 reserved: 0,
             })?;
             Ok(())
-        };
-        match step() {
-            Ok(()) => Flow::Continue,
-            Err(e) => {
-                failure = Some(e);
-                Flow::Stop
-            }
-        }
+        })
     })?;
     failure.map_or(Ok(()), Err)
 }

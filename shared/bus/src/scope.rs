@@ -89,6 +89,16 @@ impl RunScope {
         Ok(names)
     }
 
+    /// Over what a crashed run left: removes its dead nodes, and all its
+    /// files when none of its nodes is alive.
+    pub fn clean_stale(&self) -> Result<(), BusError> {
+        self.remove_dead_nodes()?;
+        if self.live_nodes()? == 0 {
+            self.remove_all_files()?;
+        }
+        Ok(())
+    }
+
     /// How many nodes of this run are alive.
     pub fn live_nodes(&self) -> Result<usize, BusError> {
         let config = self.config()?;
@@ -105,7 +115,9 @@ impl RunScope {
 
     /// Deletes every file of this run: its folder and its /dev/shm entries.
     /// Only for when none of its processes is alive (after a clean stop, or
-    /// over what a killed run left).
+    /// over what a killed run left). Prefixes must not be prefixes of one
+    /// another (`hydractl_` and `hydractl_x_`), or one run's cleanup would
+    /// take the other's shared memory.
     pub fn remove_all_files(&self) -> Result<(), BusError> {
         let root = self.root();
         match std::fs::remove_dir_all(&root) {

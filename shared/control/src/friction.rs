@@ -46,7 +46,9 @@ impl StaticMap {
         }
     }
 
+    /// The map at `velocity`; a non-finite velocity reads as standing still.
     pub fn eval(&self, velocity: f64) -> f64 {
+        let velocity = if velocity.is_finite() { velocity } else { 0.0 };
         let v = &self.velocity;
         let n = v.len();
         if velocity <= v[0] {
@@ -160,6 +162,7 @@ mod tests {
         assert_eq!(m.eval(5.0), 0.5);
         assert_eq!(m.eval(-5.0), -0.5);
         assert_eq!(m.eval(0.0), 0.0);
+        assert_eq!(m.eval(f64::NAN), 0.0);
     }
 
     #[test]

@@ -18,9 +18,10 @@ pub struct HInfinityParams {
     pub den: Vec<f64>,
     /// Multiplies the torque error (N·m) into the units the paper's
     /// controller was designed for. The paper's plant (its eq. 7) has a DC
-    /// gain of 26 337 force units per unit current; dividing that by our
-    /// rotator's DC gain (about 204 N·m per unit command) keeps the paper's
-    /// loop gain: 129.
+    /// gain of 26 337 force units per unit current; dividing that by the
+    /// rotator's DC gain in N·m per unit command keeps the paper's loop gain
+    /// (`hydractl linearize` prints it; 33.7 for the default rotator, so
+    /// `config/sim.toml` has 782).
     pub error_scale: f64,
     /// Output limit, valve command units.
     pub output_limit: f64,
@@ -31,7 +32,7 @@ impl Default for HInfinityParams {
         Self {
             num: PAPER_HINF_NUM.to_vec(),
             den: PAPER_HINF_DEN.to_vec(),
-            error_scale: 129.0,
+            error_scale: 782.0,
             output_limit: 1.0,
         }
     }
@@ -47,6 +48,7 @@ pub struct HInfinity {
     transfer_function: TransferFunction,
     error_scale: f64,
     output_limit: f64,
+    output: f64,
 }
 
 impl HInfinity {
@@ -54,12 +56,21 @@ impl HInfinity {
         require_positive("error_scale", params.error_scale)?;
         require_positive("output_limit", params.output_limit)?;
         let transfer_function = TransferFunction::new(params.num, params.den)?;
+        // Strictly proper, so the output is the state's alone and a bumpless
+        // start can set it exactly.
+        if transfer_function.num().len() >= transfer_function.den().len() {
+            return Err(ControlError::InvalidTable {
+                name: "hinf",
+                reason: "the controller must be strictly proper (numerator degree below the denominator's)".into(),
+            });
+        }
         let system = DiscreteSiso::from_transfer_function_zoh(&transfer_function, ts)?;
         Ok(Self {
             system,
             transfer_function,
             error_scale: params.error_scale,
             output_limit: params.output_limit,
+            output: 0.0,
         })
     }
 
@@ -69,13 +80,20 @@ impl HInfinity {
 
     pub fn reset(&mut self) {
         self.system.reset();
+        self.output = 0.0;
     }
 
-    /// One period: the valve command for torque error `error` (N·m).
+    /// One period: the valve command for torque error `error` (N·m). A
+    /// non-finite error holds the last output and spares the state.
     pub fn update(&mut self, error: f64) -> f64 {
-        self.system
+        if !error.is_finite() {
+            return self.output;
+        }
+        self.output = self
+            .system
             .step(self.error_scale * error)
-            .clamp(-self.output_limit, self.output_limit)
+            .clamp(-self.output_limit, self.output_limit);
+        self.output
     }
 
     /// The unclamped output for a scaled error, for frequency-response tests.
@@ -87,6 +105,7 @@ impl HInfinity {
     /// (the controller is strictly proper, so the output is the state's).
     pub fn initialize_output(&mut self, output: f64) {
         self.system.initialize_output(output);
+        self.output = output;
     }
 }
 

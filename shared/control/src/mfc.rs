@@ -33,6 +33,7 @@ pub struct Mfc {
     pid_b: Pid,
     model_angle: f64,
     model_velocity: f64,
+    output: f64,
 }
 
 impl Mfc {
@@ -46,13 +47,22 @@ impl Mfc {
                 reason: "must be above output_min",
             });
         }
+        // Each PID is limited to the controller's range, so neither winds up
+        // while the sum saturates and the model never sees a force the
+        // actuator cannot give.
+        let limited = |mut pid: PidParams| {
+            pid.output_min = pid.output_min.max(params.output_min);
+            pid.output_max = pid.output_max.min(params.output_max);
+            pid
+        };
         Ok(Self {
             params,
             ts,
-            pid_a: Pid::new(params.pid_a, ts)?,
-            pid_b: Pid::new(params.pid_b, ts)?,
+            pid_a: Pid::new(limited(params.pid_a), ts)?,
+            pid_b: Pid::new(limited(params.pid_b), ts)?,
             model_angle: 0.0,
             model_velocity: 0.0,
+            output: 0.0,
         })
     }
 
@@ -61,6 +71,7 @@ impl Mfc {
         self.pid_b.reset();
         self.model_angle = 0.0;
         self.model_velocity = 0.0;
+        self.output = 0.0;
     }
 
     pub fn model_angle(&self) -> f64 {
@@ -69,13 +80,17 @@ impl Mfc {
 
     /// One period: the output for the reference and the measured angle.
     pub fn update(&mut self, reference: f64, angle: f64, feedforward: f64) -> f64 {
+        if !(reference.is_finite() && angle.is_finite() && feedforward.is_finite()) {
+            return self.output;
+        }
         let u_b = self.pid_b.update(reference - self.model_angle, 0.0);
         let u_a = self.pid_a.update(self.model_angle - angle, 0.0);
         // The forward model, semi-implicit Euler: Ĵ θ̈ = u_B − b̂ θ̇.
         let p = &self.params;
         self.model_velocity += self.ts * (u_b - p.b_hat * self.model_velocity) / p.j_hat;
         self.model_angle += self.ts * self.model_velocity;
-        (u_b + u_a + feedforward).clamp(p.output_min, p.output_max)
+        self.output = (u_b + u_a + feedforward).clamp(p.output_min, p.output_max);
+        self.output
     }
 
     /// Bumpless start from a running loop: the model starts where the plant

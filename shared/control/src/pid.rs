@@ -1,6 +1,6 @@
 use serde::{Deserialize, Serialize};
 
-use crate::{require, require_non_negative, require_positive, ControlError};
+use crate::{require, require_non_negative, ControlError};
 
 /// A PID's parameters, in the units of its error and output.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -13,9 +13,6 @@ pub struct PidParams {
     pub derivative_filter_s: f64,
     pub output_min: f64,
     pub output_max: f64,
-    /// Anti-windup: conditional integration plus back-calculation with this
-    /// time constant, s, pulling the integrator back when the output saturates.
-    pub anti_windup_s: f64,
 }
 
 impl Default for PidParams {
@@ -27,7 +24,6 @@ impl Default for PidParams {
             derivative_filter_s: 0.005,
             output_min: f64::NEG_INFINITY,
             output_max: f64::INFINITY,
-            anti_windup_s: 0.05,
         }
     }
 }
@@ -38,7 +34,6 @@ impl PidParams {
         require_non_negative("ki", self.ki)?;
         require_non_negative("kd", self.kd)?;
         require_non_negative("derivative_filter_s", self.derivative_filter_s)?;
-        require_positive("anti_windup_s", self.anti_windup_s)?;
         if self.output_min.is_nan() || self.output_max.is_nan() || self.output_min >= self.output_max {
             return Err(ControlError::InvalidParameter {
                 name: "output_max",
@@ -51,8 +46,9 @@ impl PidParams {
 }
 
 /// A discrete PID: derivative of the error through a first-order filter,
-/// output limits, back-calculation anti-windup, and a feed-forward input
-/// that counts towards saturation.
+/// output limits with anti-windup, and a feed-forward input that counts
+/// towards saturation. A non-finite input holds the last output and leaves
+/// the state untouched, so one bad sample cannot poison the integrator.
 #[derive(Debug, Clone)]
 pub struct Pid {
     params: PidParams,
@@ -95,6 +91,9 @@ impl Pid {
     /// One period: the output for `error`, with `feedforward` added before
     /// the limits.
     pub fn update(&mut self, error: f64, feedforward: f64) -> f64 {
+        if !(error.is_finite() && feedforward.is_finite()) {
+            return self.output;
+        }
         let p = &self.params;
         let previous = self.previous_error.unwrap_or(error);
         let raw_derivative = (error - previous) / self.ts;
@@ -102,15 +101,22 @@ impl Pid {
         self.derivative += blend * (raw_derivative - self.derivative);
         self.previous_error = Some(error);
 
-        let unsaturated = p.kp * error + self.integral + p.kd * self.derivative + feedforward;
+        let rest = p.kp * error + p.kd * self.derivative + feedforward;
+        let unsaturated = rest + self.integral;
         let output = unsaturated.clamp(p.output_min, p.output_max);
-        // Conditional integration: never integrate further into a limit. The
-        // back-calculation term then bleeds off what feed-forward pushed past it.
+        // Anti-windup: never integrate further into a limit, and while at a
+        // limit keep the integrator no further past it than the rest of the
+        // output asks; but never push it past zero for what the
+        // feed-forward or the proportional part did alone.
         let pushing_into_limit = (output >= p.output_max && error > 0.0) || (output <= p.output_min && error < 0.0);
         if !pushing_into_limit {
             self.integral += p.ki * self.ts * error;
         }
-        self.integral += self.ts / p.anti_windup_s * (output - unsaturated);
+        if output >= p.output_max {
+            self.integral = self.integral.min((p.output_max - rest).max(0.0));
+        } else if output <= p.output_min {
+            self.integral = self.integral.max((p.output_min - rest).min(0.0));
+        }
         self.output = output;
         output
     }
@@ -179,6 +185,35 @@ mod tests {
             periods += 1;
             assert!(periods < 100, "wound up");
         }
+    }
+
+    #[test]
+    fn feedforward_past_the_limit_does_not_wind_the_integrator_backwards() {
+        let mut c = Pid::new(
+            PidParams {
+                kp: 0.0,
+                ki: 1.0,
+                output_min: -1.0,
+                output_max: 1.0,
+                derivative_filter_s: 0.0,
+                ..PidParams::default()
+            },
+            0.001,
+        )
+        .expect("valid");
+        for _ in 0..1000 {
+            c.update(0.0, 5.0);
+        }
+        // The feed-forward drops: no undershoot from a wound-back integrator.
+        assert!(c.update(0.0, 0.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_nan_holds_the_output_and_spares_the_state() {
+        let mut c = pid(2.0, 5.0, 0.0);
+        let before = c.update(0.1, 0.0);
+        assert_eq!(c.update(f64::NAN, 0.0), before);
+        assert!(c.update(0.1, 0.0).is_finite());
     }
 
     #[test]

@@ -51,7 +51,11 @@ impl VelocityEstimator {
         self.estimate = velocity;
     }
 
+    /// A non-finite angle is skipped: the estimate holds until a valid one.
     pub fn update(&mut self, angle: f64) -> f64 {
+        if !angle.is_finite() {
+            return self.estimate;
+        }
         let previous = self.previous_angle.unwrap_or(angle);
         let difference = (angle - previous) / self.ts;
         self.previous_angle = Some(angle);
@@ -76,6 +80,14 @@ mod tests {
             estimate = v.update(0.5 * k as f64 * 0.001);
         }
         assert!((estimate - 0.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_nan_angle_is_skipped() {
+        let mut v = VelocityEstimator::new(VelocityEstimatorParams::default(), 0.001).expect("valid");
+        v.update(0.0);
+        v.update(f64::NAN);
+        assert!(v.update(0.001).is_finite());
     }
 
     #[test]

@@ -24,9 +24,6 @@ pub mod service {
     pub const VALVE: &str = "hydractl/valve";
     /// The supervisor's view of every process.
     pub const SUPERVISOR_STATUS: &str = "hydractl/supervisor/status";
-
-    /// The stage services, in pipeline order.
-    pub const PIPELINE: [&str; 6] = [PLANT_READING, SENSOR, FRICTION, POSITION, TORQUE, VALVE];
 }
 
 /// Validity flags of a sensor sample.

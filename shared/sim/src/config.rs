@@ -32,6 +32,8 @@ pub enum ConfigError {
     },
     #[error("config {path}: [timing] {reason}")]
     Timing { path: PathBuf, reason: String },
+    #[error("config {path}: [supervisor] {reason}")]
+    Supervisor { path: PathBuf, reason: String },
 }
 
 /// Position-only: the outer loop drives the valve. Cascade: the outer loop
@@ -185,11 +187,18 @@ pub struct ValveGuardParams {
     /// A command derived from a sensor reading more than this many periods
     /// older than the newest one puts the valve in neutral.
     pub max_age_periods: u64,
+    /// With neither readings nor commands for this long, ms, the loop
+    /// upstream is gone and the valve goes to neutral on its own clock.
+    /// Longer than the stalls of a busy computer (up to 10 ms seen here).
+    pub silence_timeout_ms: f64,
 }
 
 impl Default for ValveGuardParams {
     fn default() -> Self {
-        Self { max_age_periods: 3 }
+        Self {
+            max_age_periods: 3,
+            silence_timeout_ms: 20.0,
+        }
     }
 }
 
@@ -284,6 +293,14 @@ impl Config {
         Ok(config)
     }
 
+    /// The file's config, or the built-in default when no file is given.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
+        match path {
+            Some(path) => Self::load(path),
+            None => Self::default_sim(),
+        }
+    }
+
     /// The default simulated rotator, compiled in so that tests and a bare
     /// `hydractl sim` agree with `config/sim.toml`.
     pub fn default_sim() -> Result<Self, ConfigError> {
@@ -333,6 +350,26 @@ impl Config {
                     "integration_rate_hz ({}) must be a whole multiple of control_rate_hz ({})",
                     t.integration_rate_hz, t.control_rate_hz
                 ),
+            });
+        }
+        let sup = &self.supervisor;
+        for (name, value) in [
+            ("hung_after_ms", sup.hung_after_ms),
+            ("restart_backoff_initial_ms", sup.restart_backoff_initial_ms),
+            ("restart_backoff_max_ms", sup.restart_backoff_max_ms),
+            ("stop_timeout_ms", sup.stop_timeout_ms),
+        ] {
+            if value == 0 {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!("{name} must be above 0"),
+                });
+            }
+        }
+        if sup.restart_backoff_max_ms < sup.restart_backoff_initial_ms {
+            return Err(ConfigError::Supervisor {
+                path: path.to_owned(),
+                reason: "restart_backoff_max_ms must be at least restart_backoff_initial_ms".into(),
             });
         }
         // Building every stage validates every controller's parameters.

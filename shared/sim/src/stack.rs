@@ -127,6 +127,8 @@ pub struct PositionStage {
     variant: PositionVariant,
     trajectory: Trajectory,
     outer: OuterLoop,
+    mfc_model: Option<(f64, f64)>,
+    started: bool,
 }
 
 impl PositionStage {
@@ -145,11 +147,14 @@ impl PositionStage {
                 OuterLoop::Mfc(Mfc::new(outer.mfc, ts).map_err(in_section(outer_section(config, "mfc")))?)
             }
         };
+        let mfc = &config.control.outer().mfc;
         Ok(Self {
             structure: config.control.structure,
             variant,
             trajectory: config.trajectory.clone(),
             outer,
+            mfc_model: Some((mfc.j_hat, mfc.b_hat)),
+            started: false,
         })
     }
 
@@ -171,6 +176,16 @@ impl PositionStage {
         };
         let reference = self.trajectory.sample(time);
         let error = reference.angle - sensor.angle;
+        if !self.started {
+            self.started = true;
+            // Start where the machine is, not at zero: a stage restarted
+            // mid-run would otherwise begin with its model a whole motion
+            // away. The output starts at the model's inverse dynamics.
+            if let (OuterLoop::Mfc(mfc), Some((j_hat, b_hat))) = (&mut self.outer, self.mfc_model) {
+                let output = j_hat * reference.acceleration + b_hat * reference.velocity + friction;
+                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction);
+            }
+        }
         let output = match &mut self.outer {
             OuterLoop::Pid(pid) => pid.update(error, friction),
             OuterLoop::Mfc(mfc) => mfc.update(reference.angle, sensor.angle, friction),
@@ -298,41 +313,55 @@ impl ValveFaults {
 /// stalls, every process stalls together and no command is stale for it,
 /// while a dead or hung controller leaves the readings coming and the
 /// commands not, which trips the guard after `max_age_periods` readings.
+/// When the readings stop too, the process calls [`ValveStage::on_silence`]
+/// from its own clock.
 #[derive(Debug, Clone)]
 pub struct ValveStage {
     shaper: ValveShaper,
     max_age: u64,
     /// Readings received since the last command.
     readings_since_command: u64,
-    /// The most recent readings' sequence numbers, newest last; a command
-    /// derived from a reading older than all of them is stale.
-    recent_readings: [u64; 2 * MAX_GUARD_PERIODS],
-    recent_count: usize,
+    /// The most recent readings, a ring: (sequence number, valid).
+    recent: [(u64, bool); RECENT_READINGS],
+    next_slot: usize,
+    filled: usize,
 }
 
 /// The longest guard the valve supports, in periods.
 pub const MAX_GUARD_PERIODS: usize = 32;
+const RECENT_READINGS: usize = 2 * MAX_GUARD_PERIODS;
 
 impl ValveStage {
     pub fn new(config: &Config) -> Result<Self, StackError> {
-        let max_age = config.control.valve_guard.max_age_periods;
-        if max_age == 0 || max_age as usize > MAX_GUARD_PERIODS {
+        let guard = &config.control.valve_guard;
+        if guard.max_age_periods == 0 || guard.max_age_periods as usize > MAX_GUARD_PERIODS {
             return Err(StackError::Control {
                 section: "control.valve_guard",
                 source: ControlError::InvalidParameter {
                     name: "max_age_periods",
-                    value: max_age as f64,
+                    value: guard.max_age_periods as f64,
                     reason: "must be from 1 to 32",
+                },
+            });
+        }
+        if !(guard.silence_timeout_ms.is_finite() && guard.silence_timeout_ms > 0.0) {
+            return Err(StackError::Control {
+                section: "control.valve_guard",
+                source: ControlError::InvalidParameter {
+                    name: "silence_timeout_ms",
+                    value: guard.silence_timeout_ms,
+                    reason: "must be positive",
                 },
             });
         }
         Ok(Self {
             shaper: ValveShaper::new(config.control.valve, config.timing.control_period())
                 .map_err(in_section("control.valve"))?,
-            max_age,
+            max_age: guard.max_age_periods,
             readings_since_command: 0,
-            recent_readings: [0; 2 * MAX_GUARD_PERIODS],
-            recent_count: 0,
+            recent: [(0, false); RECENT_READINGS],
+            next_slot: 0,
+            filled: 0,
         })
     }
 
@@ -343,12 +372,14 @@ impl ValveStage {
 
     /// A command derived from sensor reading `seq`. Returns the command to
     /// drive and the faults.
-    pub fn on_command(&mut self, seq: u64, requested: f64, sensor_valid: bool) -> (f64, ValveFaults) {
+    pub fn on_command(&mut self, seq: u64, requested: f64) -> (f64, ValveFaults) {
+        let reading = self.reading(seq);
         let faults = ValveFaults {
             stale: self.readings_after(seq) > self.max_age,
             not_finite: !requested.is_finite(),
             out_of_range: requested.is_finite() && requested.abs() > 1.0 + 1e-9,
-            invalid_sensor: !sensor_valid,
+            // A reading the valve never saw is not known to be valid.
+            invalid_sensor: reading != Some(true),
         };
         self.readings_since_command = 0;
         if faults.any() {
@@ -359,32 +390,52 @@ impl ValveStage {
 
     /// A new sensor reading `seq`: after more than `max_age` readings with no
     /// command, the valve goes to neutral (`Some`).
-    pub fn on_sensor(&mut self, seq: u64) -> Option<(f64, ValveFaults)> {
-        let n = self.recent_readings.len();
-        if self.recent_count == n {
-            self.recent_readings.copy_within(1.., 0);
-            self.recent_readings[n - 1] = seq;
-        } else {
-            self.recent_readings[self.recent_count] = seq;
-            self.recent_count += 1;
+    pub fn on_sensor(&mut self, seq: u64, valid: bool) -> Option<(f64, ValveFaults)> {
+        // A sequence going backwards is a restarted plant: forget the old run.
+        if self.filled > 0 {
+            let newest = self.recent[(self.next_slot + RECENT_READINGS - 1) % RECENT_READINGS].0;
+            if seq < newest {
+                self.filled = 0;
+                self.next_slot = 0;
+            }
         }
+        self.recent[self.next_slot] = (seq, valid);
+        self.next_slot = (self.next_slot + 1) % RECENT_READINGS;
+        self.filled = (self.filled + 1).min(RECENT_READINGS);
         self.readings_since_command += 1;
         if self.readings_since_command > self.max_age {
-            let faults = ValveFaults {
-                stale: true,
-                ..ValveFaults::default()
-            };
-            return Some((self.neutral(), faults));
+            return Some(self.stale());
         }
         None
     }
 
+    /// Neither readings nor commands for the silence timeout: the loop
+    /// upstream of the valve is gone, so the valve goes to neutral.
+    pub fn on_silence(&mut self) -> (f64, ValveFaults) {
+        self.stale()
+    }
+
+    fn stale(&mut self) -> (f64, ValveFaults) {
+        let faults = ValveFaults {
+            stale: true,
+            ..ValveFaults::default()
+        };
+        (self.neutral(), faults)
+    }
+
+    /// The stored readings: the ring fills from slot 0, so until it is
+    /// full they are its first `filled` slots, and then all of them.
+    fn entries(&self) -> impl Iterator<Item = &(u64, bool)> {
+        self.recent.iter().take(self.filled)
+    }
+
+    fn reading(&self, seq: u64) -> Option<bool> {
+        self.entries().find(|(s, _)| *s == seq).map(|(_, valid)| *valid)
+    }
+
     /// How many readings the valve has received after reading `seq`.
     fn readings_after(&self, seq: u64) -> u64 {
-        self.recent_readings[..self.recent_count]
-            .iter()
-            .filter(|&&r| r > seq)
-            .count() as u64
+        self.entries().filter(|(s, _)| *s > seq).count() as u64
     }
 
     fn neutral(&mut self) -> f64 {
@@ -404,8 +455,8 @@ mod tests {
     #[test]
     fn valve_passes_sound_commands_through_the_shaper() {
         let mut v = valve();
-        assert!(v.on_sensor(10).is_none());
-        let (command, faults) = v.on_command(10, 0.05, true);
+        assert!(v.on_sensor(10, true).is_none());
+        let (command, faults) = v.on_command(10, 0.05);
         assert!(!faults.any());
         assert!((command - 0.05).abs() < 1e-12);
     }
@@ -413,16 +464,19 @@ mod tests {
     #[test]
     fn valve_goes_neutral_on_garbage_at_once() {
         let mut v = valve();
-        v.on_sensor(1);
-        v.on_command(1, 0.05, true);
-        v.on_sensor(2);
-        let (command, faults) = v.on_command(2, f64::NAN, true);
+        v.on_sensor(1, true);
+        v.on_command(1, 0.05);
+        v.on_sensor(2, true);
+        let (command, faults) = v.on_command(2, f64::NAN);
         assert_eq!((command, faults.not_finite), (0.0, true));
-        v.on_sensor(3);
-        let (command, faults) = v.on_command(3, 1.5, true);
+        v.on_sensor(3, true);
+        let (command, faults) = v.on_command(3, 1.5);
         assert_eq!((command, faults.out_of_range), (0.0, true));
-        v.on_sensor(4);
-        let (command, faults) = v.on_command(4, 0.05, false);
+        v.on_sensor(4, false);
+        let (command, faults) = v.on_command(4, 0.05);
+        assert_eq!((command, faults.invalid_sensor), (0.0, true));
+        // A command from a reading the valve never saw is not trusted either.
+        let (command, faults) = v.on_command(99, 0.05);
         assert_eq!((command, faults.invalid_sensor), (0.0, true));
     }
 
@@ -430,36 +484,48 @@ mod tests {
     fn a_command_three_readings_old_is_fresh_and_four_is_stale() {
         let mut v = valve();
         for seq in 5..=8 {
-            v.on_sensor(seq);
+            v.on_sensor(seq, true);
         }
-        let (_, faults) = v.on_command(5, 0.05, true);
+        let (_, faults) = v.on_command(5, 0.05);
         assert!(!faults.stale, "readings 6, 7, 8 came after it");
-        v.on_sensor(9);
-        let (command, faults) = v.on_command(5, 0.05, true);
+        v.on_sensor(9, true);
+        let (command, faults) = v.on_command(5, 0.05);
         assert_eq!((command, faults.stale), (0.0, true));
     }
 
     #[test]
-    fn valve_goes_neutral_when_commands_stop() {
+    fn valve_goes_neutral_when_commands_stop_or_everything_falls_silent() {
         let mut v = valve();
-        v.on_sensor(10);
-        v.on_command(10, 0.05, true);
-        assert!(v.on_sensor(11).is_none());
-        assert!(v.on_sensor(12).is_none());
-        assert!(v.on_sensor(13).is_none());
-        let (command, faults) = v.on_sensor(14).expect("stale after 3 periods");
+        v.on_sensor(10, true);
+        v.on_command(10, 0.05);
+        assert!(v.on_sensor(11, true).is_none());
+        assert!(v.on_sensor(12, true).is_none());
+        assert!(v.on_sensor(13, true).is_none());
+        let (command, faults) = v.on_sensor(14, true).expect("stale after 3 periods");
+        assert_eq!((command, faults.stale), (0.0, true));
+        let (command, faults) = v.on_silence();
         assert_eq!((command, faults.stale), (0.0, true));
     }
 
     #[test]
     fn a_stall_of_the_whole_machine_is_not_a_stale_command() {
-        // The plant skipped ahead after the computer stalled: one reading
-        // far ahead, and its command right after.
         let mut v = valve();
-        v.on_sensor(10);
-        v.on_command(10, 0.05, true);
-        assert!(v.on_sensor(17).is_none());
-        let (_, faults) = v.on_command(17, 0.05, true);
+        v.on_sensor(10, true);
+        v.on_command(10, 0.05);
+        assert!(v.on_sensor(17, true).is_none());
+        let (_, faults) = v.on_command(17, 0.05);
+        assert!(!faults.any());
+    }
+
+    #[test]
+    fn a_restarted_plant_starts_a_fresh_history() {
+        let mut v = valve();
+        for seq in 1000..1010 {
+            v.on_sensor(seq, true);
+            v.on_command(seq, 0.05);
+        }
+        v.on_sensor(0, true);
+        let (_, faults) = v.on_command(0, 0.05);
         assert!(!faults.any());
     }
 }

@@ -52,6 +52,8 @@ pub struct StageArgs {
 }
 
 /// One stage's algorithm, applied to the benchmark sample.
+// One per stage process, built once; boxing would only add an indirection.
+#[allow(clippy::large_enum_variant)]
 enum Stage {
     Sensor(SensorStage),
     Friction(FrictionStage),
@@ -168,7 +170,9 @@ fn quantile_us(sorted: &[u64], q: f64) -> f64 {
 pub fn bench(args: LatencyArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::default_sim()?;
-    placement::pin_to_loop_cpu(config.timing.loop_cpu);
+    if let Err(e) = placement::pin_to_loop_cpu(config.timing.loop_cpu) {
+        eprintln!("{e}");
+    }
     let cycles = (args.duration * 1000.0).round() as u64;
     let want = |name: &str| args.only.as_deref().is_none_or(|only| only == name);
     let mut all = Vec::new();
@@ -257,15 +261,16 @@ fn ready_line(child: &mut Child) -> Result<String> {
     Ok(line.trim().to_owned())
 }
 
-fn stop(children: &mut [Child]) {
-    for child in children.iter() {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(child.id() as i32),
-            nix::sys::signal::Signal::SIGTERM,
-        );
-    }
-    for child in children.iter_mut() {
-        let _ = child.wait();
+/// The benchmark's stage processes: killed when dropped, so an early
+/// return never leaves one running.
+struct StageProcesses(Vec<Child>);
+
+impl Drop for StageProcesses {
+    fn drop(&mut self) {
+        for child in self.0.iter_mut() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
     }
 }
 
@@ -276,11 +281,12 @@ fn run_iceoryx2(config: &Config, cycles: u64) -> Result<Results> {
         let bus = Bus::open(&scope, "bench-driver")?;
         let first: Outlet<BenchSample> = Outlet::open(&bus, SERVICES[0])?;
         let last: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[5], 4)?;
-        let mut children = Vec::new();
+        let mut children = StageProcesses(Vec::new());
         for index in 0..5 {
-            let mut child = spawn_stage(index, "iceoryx2", None, Some(&scope))?;
-            ready_line(&mut child)?;
-            children.push(child);
+            children.0.push(spawn_stage(index, "iceoryx2", None, Some(&scope))?);
+            if let Some(child) = children.0.last_mut() {
+                ready_line(child)?;
+            }
         }
         let results = drive(cycles, "iceoryx2", config, |s| {
             first.publish(*s)?;
@@ -294,7 +300,7 @@ fn run_iceoryx2(config: &Config, cycles: u64) -> Result<Results> {
             }
             Ok(None)
         });
-        stop(&mut children);
+        drop(children);
         results
     })();
     let _ = scope.remove_dead_nodes();
@@ -306,12 +312,13 @@ fn run_udp(config: &Config, cycles: u64) -> Result<Results> {
     let back = UdpSocket::bind("127.0.0.1:0")?;
     back.set_read_timeout(Some(Duration::from_millis(50)))?;
     let mut next = back.local_addr()?.port();
-    let mut children = Vec::new();
+    let mut children = StageProcesses(Vec::new());
     // Last stage first: each needs the next hop's port.
     for index in (0..5).rev() {
-        let mut child = spawn_stage(index, "udp", Some(next), None)?;
-        next = ready_line(&mut child)?.parse().context("a UDP stage's port")?;
-        children.push(child);
+        children.0.push(spawn_stage(index, "udp", Some(next), None)?);
+        if let Some(child) = children.0.last_mut() {
+            next = ready_line(child)?.parse().context("a UDP stage's port")?;
+        }
     }
     let out = UdpSocket::bind("127.0.0.1:0")?;
     out.connect(("127.0.0.1", next))?;
@@ -331,7 +338,7 @@ fn run_udp(config: &Config, cycles: u64) -> Result<Results> {
             }
         }
     });
-    stop(&mut children);
+    drop(children);
     results
 }
 
@@ -382,7 +389,9 @@ fn drive(
 pub fn stage(args: StageArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::default_sim()?;
-    placement::pin_to_loop_cpu(config.timing.loop_cpu);
+    if let Err(e) = placement::pin_to_loop_cpu(config.timing.loop_cpu) {
+        eprintln!("{e}");
+    }
     let mut stage = Stage::new(args.index, &config)?;
     let stamp = args.index + 1;
     match args.transport.as_str() {

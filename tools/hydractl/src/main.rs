@@ -133,10 +133,7 @@ fn main() -> Result<()> {
 }
 
 fn load_config(path: Option<&Path>) -> Result<Config> {
-    Ok(match path {
-        Some(path) => Config::load(path)?,
-        None => Config::default_sim()?,
-    })
+    Ok(Config::load_or_default(path)?)
 }
 
 fn run_sim(args: SimArgs) -> Result<()> {

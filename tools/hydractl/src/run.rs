@@ -106,11 +106,15 @@ struct Tracking {
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
-    let config = match &args.config {
-        Some(path) => hydractl_sim::Config::load(path)?,
-        None => hydractl_sim::Config::default_sim()?,
-    };
-    hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu);
+    if let Some(d) = args.duration {
+        if !(d.is_finite() && d >= 0.0) {
+            bail!("--duration must be a finite number of seconds, got {d}");
+        }
+    }
+    let config = hydractl_sim::Config::load_or_default(args.config.as_deref())?;
+    if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
+        eprintln!("{e}");
+    }
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
     // Over a crashed run's leftovers: clean its dead nodes, and its files if
@@ -122,10 +126,9 @@ pub fn run(args: RunArgs) -> Result<()> {
             scope.prefix()
         );
     }
-    if scope.live_nodes()? == 0 {
-        scope.remove_all_files()?;
-    }
-    let dir = std::env::current_exe()?
+    scope.clean_stale()?;
+    let dir = std::env::current_exe()
+        .context("locating the running executable")?
         .parent()
         .map(std::path::Path::to_path_buf)
         .context("locating the supervisor binary")?;
@@ -273,7 +276,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     if let Some(e) = failure {
         return Err(e);
     }
-    let _ = exit == LoopExit::Signal;
+    // A signal ends the run as the duration does: with a summary.
+    let _: LoopExit = exit;
     Ok(RunSummary {
         duration_s: started.elapsed().as_secs_f64(),
         cycles,
