@@ -29,6 +29,9 @@ enum Command {
     /// The baseline plant's linear model from valve command to an output:
     /// transfer function, poles with natural frequency and damping, DC gain.
     Linearize(LinearizeArgs),
+    /// Identification from measured data.
+    #[command(subcommand)]
+    Ident(IdentCommand),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -93,6 +96,44 @@ enum LinearOutput {
 }
 
 #[derive(Subcommand)]
+enum IdentCommand {
+    /// A continuous-time transfer function from one column to another.
+    Tf(IdentTfArgs),
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum IdentMethod {
+    /// Prediction error, ARMAX noise model, refined from output error (experimental).
+    Pem,
+    /// Output error.
+    Oe,
+}
+
+#[derive(clap::Args)]
+struct IdentTfArgs {
+    /// CSV with a header row, a `t` column and the two columns named below.
+    #[arg(long)]
+    data: PathBuf,
+    #[arg(long)]
+    input: String,
+    #[arg(long)]
+    output: String,
+    #[arg(long)]
+    poles: usize,
+    #[arg(long)]
+    zeros: usize,
+    #[arg(long, value_enum, default_value_t = IdentMethod::Oe)]
+    method: IdentMethod,
+    /// Share of the data, from its start, used to estimate; the rest validates.
+    #[arg(long, default_value_t = 0.7)]
+    estimation_fraction: f64,
+    /// Print {"num": [...], "den": [...], "fit_percent": X, ...}: continuous
+    /// time, descending powers of s, `den` monic.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Subcommand)]
 enum BenchCommand {
     /// Simulated seconds per wall-clock second of the default plant
     /// (10 kHz integration, 1 kHz control, cascade).
@@ -126,6 +167,7 @@ fn main() -> Result<()> {
         Command::Sim(args) => run_sim(args),
         Command::Effects => emit(&effects_table()),
         Command::Linearize(args) => linearize(args),
+        Command::Ident(IdentCommand::Tf(args)) => ident_tf(args),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
         Command::BenchStage(args) => bench_latency::stage(args),
@@ -227,6 +269,62 @@ fn linearize(args: LinearizeArgs) -> Result<()> {
     }
     writeln!(text, "  DC gain: {dc_gain:.6e}")?;
     emit(&text)
+}
+
+fn ident_tf(args: IdentTfArgs) -> Result<()> {
+    let data = hydractl_ident::Dataset::from_csv(&args.data, &["t", &args.input, &args.output])?;
+    let ts = data.sample_time()?;
+    let method = match args.method {
+        IdentMethod::Pem => hydractl_ident::Method::Pem,
+        IdentMethod::Oe => hydractl_ident::Method::Oe,
+    };
+    let fit = hydractl_ident::identify_tf(
+        data.column(&args.input)?,
+        data.column(&args.output)?,
+        ts,
+        hydractl_ident::TfOptions {
+            poles: args.poles,
+            zeros: args.zeros,
+            method,
+            estimation_fraction: args.estimation_fraction,
+        },
+    )
+    .with_context(|| {
+        format!(
+            "identifying {} → {} in {}",
+            args.input,
+            args.output,
+            args.data.display()
+        )
+    })?;
+    let pairs: Vec<serde_json::Value> = fit
+        .tf
+        .resonances()
+        .iter()
+        .map(|(wn, zeta)| serde_json::json!({"natural_frequency_rad_s": wn, "damping": zeta}))
+        .collect();
+    if args.json {
+        let json = serde_json::json!({
+            "num": fit.tf.num(),
+            "den": fit.tf.den(),
+            "fit_percent": fit.fit_percent,
+            "estimation_fit_percent": fit.estimation_fit_percent,
+            "resonances": pairs,
+            "sample_time_s": ts,
+            "iterations": fit.iterations,
+        });
+        return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
+    }
+    let fmt = |p: &[f64]| p.iter().map(|c| format!("{c:.6e}")).collect::<Vec<_>>().join(", ");
+    emit(&format!(
+        "{} → {}: num [{}], den [{}], fit {:.1}% on validation ({:.1}% on estimation)\n",
+        args.input,
+        args.output,
+        fmt(fit.tf.num()),
+        fmt(fit.tf.den()),
+        fit.fit_percent,
+        fit.estimation_fit_percent
+    ))
 }
 
 fn effects_table() -> String {

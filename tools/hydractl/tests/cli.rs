@@ -141,3 +141,49 @@ fn linearize_shows_the_lightly_damped_pair_and_a_monic_denominator() {
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert!(json["dc_gain"].is_null(), "the angle integrates");
 }
+
+#[test]
+fn ident_tf_recovers_the_plants_linearization_from_closed_loop_data() {
+    let dir = scratch("ident");
+    let csv = dir.join("run.csv");
+    let sim = hydractl()
+        .args(["sim", "--duration", "30", "--controller", "cascade", "--out"])
+        .arg(&csv)
+        .output()
+        .expect("runs");
+    assert!(sim.status.success());
+    let out = hydractl()
+        .args([
+            "ident", "tf", "--input", "u", "--output", "torque", "--poles", "4", "--zeros", "1", "--json", "--data",
+        ])
+        .arg(&csv)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert!(json["fit_percent"].as_f64().expect("fit") >= 95.0, "{json}");
+    assert_eq!(json["den"][0], 1.0);
+    assert_eq!(json["num"].as_array().map(Vec::len), Some(2));
+    // The valve pair of the default rotator: 32 rad/s.
+    let pairs = json["resonances"].as_array().expect("pairs");
+    assert!(pairs
+        .iter()
+        .any(|p| (p["natural_frequency_rad_s"].as_f64().unwrap_or(0.0) - 32.0).abs() < 1.6));
+
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, "t,u\n0,1\n0.001,2\n").expect("write");
+    let out = hydractl()
+        .args([
+            "ident", "tf", "--input", "u", "--output", "torque", "--poles", "4", "--zeros", "1", "--data",
+        ])
+        .arg(&bad)
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bad.csv") && err.contains("missing column `torque`"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(dir).ok();
+}

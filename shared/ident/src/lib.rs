@@ -1,0 +1,8 @@
+//! Identification from measured data: loading and checking it, and fitting
+//! models to it. No IPC here.
+
+pub mod data;
+pub mod tf;
+
+pub use data::{DataError, Dataset};
+pub use tf::{fit_percent, identify_tf, IdentError, Method, TfFit, TfOptions};

@@ -1,0 +1,496 @@
+//! Continuous-time transfer functions from sampled input and output data.
+//!
+//! 1. Block-average down to about 200 Hz, so a discrete fit is well
+//!    conditioned for dynamics of tens of rad/s.
+//! 2. Discrete ARX by least squares.
+//! 3. To continuous time by the inverse bilinear map; the numerator is then
+//!    refitted to the requested number of zeros on the frequency response.
+//! 4. Levenberg–Marquardt on the continuous coefficients: `oe` minimizes
+//!    the simulated output's error; `pem` then goes on from that model to
+//!    minimize the one-step prediction error of the zero-order-hold model
+//!    with an ARMAX noise model, A y = B u + C e, C estimated too.
+//!
+//! The fit is MATLAB `compare`'s, 100 (1 − ‖y − ŷ‖ / ‖y − mean y‖), on the
+//! validation segment, simulating the model from rest over all the data.
+
+use hydractl_lti::{poly_mul, Complex, StateSpace, TransferFunction};
+use nalgebra::{DMatrix, DVector};
+
+#[derive(Debug, thiserror::Error)]
+pub enum IdentError {
+    #[error("need at least {needed} samples, have {have}")]
+    TooShort { needed: usize, have: usize },
+    #[error("input and output lengths differ: {input} and {output}")]
+    Lengths { input: usize, output: usize },
+    #[error("{zeros} zeros with {poles} poles: a proper model needs fewer zeros than poles, and at least one pole")]
+    Orders { poles: usize, zeros: usize },
+    #[error("the sample time must be positive, got {0}")]
+    SampleTime(f64),
+    #[error("the input does not excite the system (it is constant)")]
+    NoExcitation,
+    #[error("the fit did not produce a usable model: {0}")]
+    Failed(String),
+    #[error(transparent)]
+    Lti(#[from] hydractl_lti::LtiError),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// Output error: the simulated output's error.
+    Oe,
+    /// Prediction error with an ARX noise model.
+    Pem,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TfOptions {
+    pub poles: usize,
+    pub zeros: usize,
+    pub method: Method,
+    /// Share of the data, from its start, used to estimate; the rest validates.
+    pub estimation_fraction: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct TfFit {
+    pub tf: TransferFunction,
+    /// On the validation segment, percent.
+    pub fit_percent: f64,
+    /// On the estimation segment, percent.
+    pub estimation_fit_percent: f64,
+    pub iterations: usize,
+}
+
+/// MATLAB's fit: 100 (1 − ‖y − ŷ‖ / ‖y − mean(y)‖).
+pub fn fit_percent(measured: &[f64], modelled: &[f64]) -> f64 {
+    let n = measured.len().min(modelled.len());
+    if n == 0 {
+        return f64::NAN;
+    }
+    let mean = measured[..n].iter().sum::<f64>() / n as f64;
+    let error: f64 = measured[..n].iter().zip(modelled).map(|(y, m)| (y - m).powi(2)).sum();
+    let spread: f64 = measured[..n].iter().map(|y| (y - mean).powi(2)).sum();
+    100.0 * (1.0 - (error / spread).sqrt())
+}
+
+pub fn identify_tf(u: &[f64], y: &[f64], ts: f64, options: TfOptions) -> Result<TfFit, IdentError> {
+    let TfOptions {
+        poles,
+        zeros,
+        method,
+        estimation_fraction,
+    } = options;
+    if u.len() != y.len() {
+        return Err(IdentError::Lengths {
+            input: u.len(),
+            output: y.len(),
+        });
+    }
+    if poles == 0 || zeros >= poles {
+        return Err(IdentError::Orders { poles, zeros });
+    }
+    if !(ts.is_finite() && ts > 0.0) {
+        return Err(IdentError::SampleTime(ts));
+    }
+    let needed = 20 * (poles + zeros + 1);
+    if u.len() < needed {
+        return Err(IdentError::TooShort { needed, have: u.len() });
+    }
+    if u.iter().all(|&v| v == u[0]) {
+        return Err(IdentError::NoExcitation);
+    }
+    let split = ((u.len() as f64 * estimation_fraction.clamp(0.1, 1.0)) as usize).clamp(needed / 2, u.len());
+
+    // 1. Decimate the estimation segment to about 200 Hz for the start.
+    let factor = ((1.0 / 200.0) / ts).floor().max(1.0) as usize;
+    let (ud, yd) = (block_average(&u[..split], factor), block_average(&y[..split], factor));
+
+    // 2–3. ARX, then continuous.
+    let initial = arx_to_continuous(&ud, &yd, ts * factor as f64, poles, zeros)?;
+
+    // 4. Refine at the data's own rate, where the zero-order hold is exact
+    // (a step inside an averaged block is not held): output error first;
+    // prediction error then starts from it (with C = A it is the same
+    // model) and adds its noise model.
+    let (ue, ye) = (&u[..split], &y[..split]);
+    let (mut tf, mut iterations) = refine(&initial, ue, ye, ts, Method::Oe)?;
+    if method == Method::Pem {
+        let (pem, more) = refine(&tf, ue, ye, ts, Method::Pem)?;
+        tf = pem;
+        iterations += more;
+    }
+
+    // Fit at the data's own rate, from rest, over all of it.
+    let simulated = simulate(&tf, u, ts)?;
+    Ok(TfFit {
+        fit_percent: fit_percent(&y[split..], &simulated[split..]),
+        estimation_fit_percent: fit_percent(&y[..split], &simulated[..split]),
+        tf,
+        iterations,
+    })
+}
+
+fn block_average(x: &[f64], factor: usize) -> Vec<f64> {
+    x.chunks_exact(factor)
+        .map(|c| c.iter().sum::<f64>() / factor as f64)
+        .collect()
+}
+
+/// The response of `tf` to `u` held between samples, from rest.
+pub fn simulate(tf: &TransferFunction, u: &[f64], ts: f64) -> Result<Vec<f64>, IdentError> {
+    let discrete = tf.to_state_space().discretize_zoh(ts)?;
+    Ok(simulate_discrete(&discrete, u))
+}
+
+fn simulate_discrete(d: &StateSpace, u: &[f64]) -> Vec<f64> {
+    let n = d.states();
+    let (a, b) = (&d.a, d.b.column(0));
+    let (c, dd) = (d.c.row(0), d.d[(0, 0)]);
+    let mut x = DVector::zeros(n);
+    let mut next = DVector::zeros(n);
+    let mut y = Vec::with_capacity(u.len());
+    for &uk in u {
+        y.push((c * &x)[(0, 0)] + dd * uk);
+        next.gemv(1.0, a, &x, 0.0);
+        next.axpy(uk, &b, 1.0);
+        std::mem::swap(&mut x, &mut next);
+    }
+    y
+}
+
+/// Least-squares ARX with `n` poles and `n` numerator taps (delay 1), then
+/// the inverse bilinear map to continuous time, with the numerator refitted
+/// to `zeros` zeros on the frequency response.
+fn arx_to_continuous(u: &[f64], y: &[f64], ts: f64, n: usize, zeros: usize) -> Result<TransferFunction, IdentError> {
+    let rows = y.len() - n;
+    let mut phi = DMatrix::zeros(rows, 2 * n);
+    let mut target = DVector::zeros(rows);
+    for k in n..y.len() {
+        let r = k - n;
+        for i in 1..=n {
+            phi[(r, i - 1)] = -y[k - i];
+            phi[(r, n + i - 1)] = u[k - i];
+        }
+        target[r] = y[k];
+    }
+    let mut theta = phi
+        .clone()
+        .svd(true, true)
+        .solve(&target, 1e-12)
+        .map_err(|e| IdentError::Failed(format!("ARX least squares: {e}")))?;
+    // Least squares is biased when the output is noisy; instrumental
+    // variables, the previous estimate's noise-free output, are not.
+    for _ in 0..4 {
+        let Some(x) = simulate_arx(&theta, u, n) else { break };
+        let mut z = DMatrix::zeros(rows, 2 * n);
+        for k in n..y.len() {
+            for i in 1..=n {
+                z[(k - n, i - 1)] = -x[k - i];
+                z[(k - n, n + i - 1)] = u[k - i];
+            }
+        }
+        let zt = z.transpose();
+        match (&zt * &phi).lu().solve(&(&zt * &target)) {
+            Some(next) if next.iter().all(|v| v.is_finite()) && arx_is_stable(&next, n) => theta = next,
+            _ => break,
+        }
+    }
+    // A(z) = z^n + a1 z^{n-1} + … ; B(z) = b1 z^{n-1} + … + bn.
+    let mut a_z = vec![1.0];
+    a_z.extend((0..n).map(|i| theta[i]));
+    let mut b_z = vec![0.0];
+    b_z.extend((0..n).map(|i| theta[n + i]));
+    let (num, den) = (bilinear_to_continuous(&b_z, ts), bilinear_to_continuous(&a_z, ts));
+    let den_tf = TransferFunction::new(vec![1.0], den.clone())?;
+    // Mirror any unstable pole into the left half-plane, and bring any pole
+    // beyond half the Nyquist frequency within it: a stable start the
+    // sampled data can see.
+    let limit = 0.5 * std::f64::consts::PI / ts;
+    let mirrored: Vec<Complex<f64>> = den_tf
+        .poles()
+        .iter()
+        .map(|p| {
+            let p = if p.re >= 0.0 {
+                Complex::new(-p.re.abs().max(1e-3), p.im)
+            } else {
+                *p
+            };
+            if p.norm() > limit {
+                p * (limit / p.norm())
+            } else {
+                p
+            }
+        })
+        .collect();
+    let den_monic = hydractl_lti::poly_from_roots(&mirrored);
+    let full = TransferFunction::new(num, den)?;
+    // Keep the denominator; fit a numerator of degree `zeros` to the
+    // bilinear model's response below a third of the Nyquist frequency.
+    let nyquist = std::f64::consts::PI / ts;
+    let grid: Vec<f64> = (1..=200).map(|i| nyquist / 3.0 * i as f64 / 200.0).collect();
+    let mut m = DMatrix::zeros(2 * grid.len(), zeros + 1);
+    let mut rhs = DVector::zeros(2 * grid.len());
+    for (g, &w) in grid.iter().enumerate() {
+        let s = Complex::new(0.0, w);
+        let target = full.eval(s) * hydractl_lti::poly_eval(&den_monic, s);
+        for j in 0..=zeros {
+            let power = s.powu((zeros - j) as u32);
+            m[(2 * g, j)] = power.re;
+            m[(2 * g + 1, j)] = power.im;
+        }
+        rhs[2 * g] = target.re;
+        rhs[2 * g + 1] = target.im;
+    }
+    let num = m
+        .svd(true, true)
+        .solve(&rhs, 1e-14)
+        .map_err(|e| IdentError::Failed(format!("numerator fit: {e}")))?;
+    Ok(TransferFunction::new(num.iter().copied().collect(), den_monic)?)
+}
+
+fn arx_is_stable(theta: &DVector<f64>, n: usize) -> bool {
+    let mut a = vec![1.0];
+    a.extend((0..n).map(|i| theta[i]));
+    hydractl_lti::poly_roots(&a).iter().all(|z| z.norm() < 1.0)
+}
+
+/// The output of the ARX model `theta` driven by `u` alone; `None` when the
+/// model is unstable.
+fn simulate_arx(theta: &DVector<f64>, u: &[f64], n: usize) -> Option<Vec<f64>> {
+    let mut x = vec![0.0; u.len()];
+    for k in n..u.len() {
+        let mut v = 0.0;
+        for i in 1..=n {
+            v += -theta[i - 1] * x[k - i] + theta[n + i - 1] * u[k - i];
+        }
+        if !v.is_finite() || v.abs() > 1e12 {
+            return None;
+        }
+        x[k] = v;
+    }
+    Some(x)
+}
+
+/// Substitutes z = (2 + sT) / (2 − sT) into a polynomial in z of degree n
+/// and clears the denominators: Σ c_k (2 + sT)^k (2 − sT)^{n−k}.
+fn bilinear_to_continuous(p: &[f64], ts: f64) -> Vec<f64> {
+    let n = p.len() - 1;
+    let plus = [ts, 2.0];
+    let minus = [-ts, 2.0];
+    let mut out = vec![0.0; n + 1];
+    for (i, &c) in p.iter().enumerate() {
+        let k = n - i; // power of z
+        let mut term = vec![c];
+        for _ in 0..k {
+            term = poly_mul(&term, &plus);
+        }
+        for _ in 0..(n - k) {
+            term = poly_mul(&term, &minus);
+        }
+        for (o, t) in out.iter_mut().rev().zip(term.iter().rev()) {
+            *o += t;
+        }
+    }
+    out
+}
+
+/// Parameters: the numerator's coefficients, then the denominator's below
+/// its leading 1, then (for `pem`) the discrete noise model's C below its
+/// leading 1. Scaled by their starting values, so one step size suits
+/// coefficients from 1 to 1e9.
+struct Parameters {
+    zeros: usize,
+    poles: usize,
+    scale: Vec<f64>,
+}
+
+impl Parameters {
+    fn new(tf: &TransferFunction, noise: &[f64]) -> Self {
+        let raw: Vec<f64> = tf.num().iter().chain(&tf.den()[1..]).chain(noise).copied().collect();
+        let largest = raw.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        Self {
+            zeros: tf.num().len() - 1,
+            poles: tf.den().len() - 1,
+            scale: raw
+                .iter()
+                .map(|v| {
+                    if v.abs() > 1e-9 * largest {
+                        *v
+                    } else {
+                        1e-6 * largest.max(1e-12)
+                    }
+                })
+                .collect(),
+        }
+    }
+
+    fn initial(&self, tf: &TransferFunction, noise: &[f64]) -> DVector<f64> {
+        let raw: Vec<f64> = tf.num().iter().chain(&tf.den()[1..]).chain(noise).copied().collect();
+        DVector::from_iterator(raw.len(), raw.iter().zip(&self.scale).map(|(v, s)| v / s))
+    }
+
+    fn values(&self, theta: &DVector<f64>) -> Vec<f64> {
+        theta.iter().zip(&self.scale).map(|(t, s)| t * s).collect()
+    }
+
+    fn model(&self, theta: &DVector<f64>) -> Result<TransferFunction, IdentError> {
+        let values = self.values(theta);
+        let num = values[..=self.zeros].to_vec();
+        let mut den = vec![1.0];
+        den.extend_from_slice(&values[self.zeros + 1..=self.zeros + self.poles]);
+        Ok(TransferFunction::new(num, den)?)
+    }
+
+    /// The noise model's C(q) = 1 + c1 q^-1 + …, for `pem`.
+    fn noise(&self, theta: &DVector<f64>) -> Vec<f64> {
+        let values = self.values(theta);
+        let mut c = vec![1.0];
+        c.extend_from_slice(&values[self.zeros + self.poles + 1..]);
+        c
+    }
+}
+
+fn residuals(
+    tf: &TransferFunction,
+    noise: &[f64],
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    method: Method,
+) -> Result<Vec<f64>, IdentError> {
+    // An unstable candidate is no model of a stable plant's data, and a pole
+    // beyond the Nyquist frequency aliases: the samples cannot tell it
+    // from a slow one, so it is no model either.
+    let nyquist = std::f64::consts::PI / ts;
+    if tf.poles().iter().any(|p| p.re >= 0.0 || p.norm() >= nyquist) {
+        return Err(IdentError::Failed("unstable or beyond the Nyquist frequency".into()));
+    }
+    let discrete = tf.to_state_space().discretize_zoh(ts)?;
+    match method {
+        Method::Oe => {
+            let yhat = simulate_discrete(&discrete, u);
+            Ok(y.iter().zip(&yhat).map(|(a, b)| a - b).collect())
+        }
+        Method::Pem => {
+            // ARMAX: A(q) y = B(q) u + C(q) e. The one-step prediction error
+            // is e = (A y − B u) / C; C = A is output error, and C is
+            // estimated with the rest.
+            if hydractl_lti::poly_roots(noise).iter().any(|z| z.norm() >= 1.0) {
+                return Err(IdentError::Failed("unstable noise model".into()));
+            }
+            let d = discrete.transfer_function(0, 0)?;
+            let n = d.den().len() - 1;
+            let mut b = vec![0.0; d.den().len() - d.num().len()];
+            b.extend_from_slice(d.num());
+            let mut e = vec![0.0; y.len()];
+            for k in n..y.len() {
+                let ay: f64 = d.den().iter().enumerate().map(|(i, a)| a * y[k - i]).sum();
+                let bu: f64 = b.iter().enumerate().map(|(i, c)| c * u[k - i]).sum();
+                let ce: f64 = noise.iter().enumerate().skip(1).map(|(i, c)| c * e[k - i]).sum();
+                e[k] = ay - bu - ce;
+            }
+            Ok(e[n..].to_vec())
+        }
+    }
+}
+
+fn cost(r: &[f64]) -> f64 {
+    r.iter().map(|v| v * v).sum()
+}
+
+fn refine(
+    initial: &TransferFunction,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    method: Method,
+) -> Result<(TransferFunction, usize), IdentError> {
+    // The noise model starts as C = A of the discrete model: output error.
+    let noise0: Vec<f64> = match method {
+        Method::Oe => Vec::new(),
+        Method::Pem => initial
+            .to_state_space()
+            .discretize_zoh(ts)?
+            .transfer_function(0, 0)?
+            .den()[1..]
+            .to_vec(),
+    };
+    let params = Parameters::new(initial, &noise0);
+    let mut theta = params.initial(initial, &noise0);
+    let mut c0 = vec![1.0];
+    c0.extend_from_slice(&noise0);
+    let mut current = match residuals(initial, &c0, u, y, ts, method) {
+        Ok(r) => r,
+        // The ARX start can be unstable on poor data: nothing to refine from.
+        Err(_) => return Ok((initial.clone(), 0)),
+    };
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    for _ in 0..100 {
+        iterations += 1;
+        let p = theta.len();
+        let mut jacobian = DMatrix::zeros(current.len(), p);
+        for j in 0..p {
+            // Forward difference; backward where the forward step leaves
+            // the stable models.
+            let mut h = 1e-6 * theta[j].abs().max(1e-3);
+            let mut shifted = theta.clone();
+            shifted[j] += h;
+            let evaluate = |t: &DVector<f64>| {
+                params
+                    .model(t)
+                    .and_then(|m| residuals(&m, &params.noise(t), u, y, ts, method))
+            };
+            let r = match evaluate(&shifted) {
+                Ok(r) => r,
+                Err(_) => {
+                    h = -h;
+                    shifted[j] = theta[j] + h;
+                    match evaluate(&shifted) {
+                        Ok(r) => r,
+                        // At the edge of stability both ways: hold this
+                        // parameter for this iteration (a zero column).
+                        Err(_) => continue,
+                    }
+                }
+            };
+            for (i, (ri, ci)) in r.iter().zip(&current).enumerate() {
+                jacobian[(i, j)] = (ri - ci) / h;
+            }
+        }
+        let r = DVector::from_column_slice(&current);
+        let jt = jacobian.transpose();
+        let jtj = &jt * &jacobian;
+        let gradient = &jt * &r;
+        let before = cost(&current);
+        let mut improved = false;
+        for _ in 0..12 {
+            let mut damped = jtj.clone();
+            for i in 0..p {
+                damped[(i, i)] += lambda * jtj[(i, i)].max(1e-12);
+            }
+            let Some(step) = damped.lu().solve(&gradient) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let candidate = &theta - &step;
+            if let Ok(r_new) = params
+                .model(&candidate)
+                .and_then(|m| residuals(&m, &params.noise(&candidate), u, y, ts, method))
+            {
+                if cost(&r_new) < before {
+                    theta = candidate;
+                    current = r_new;
+                    lambda = (lambda / 3.0).max(1e-9);
+                    improved = true;
+                    break;
+                }
+            }
+            lambda *= 10.0;
+        }
+        if !improved || (before - cost(&current)) < 1e-10 * before {
+            break;
+        }
+    }
+    Ok((params.model(&theta)?, iterations))
+}
