@@ -28,12 +28,30 @@ pub fn hydractl() -> Command {
     Command::new(binary_dir().join("hydractl"))
 }
 
+/// A run scope of a test's own, whose files are removed when it is dropped,
+/// also when the test fails half-way. Declare it before the run's guard, so
+/// that the run stops first.
+pub struct ScopeGuard(pub RunScope);
+
+impl std::ops::Deref for ScopeGuard {
+    type Target = RunScope;
+    fn deref(&self) -> &RunScope {
+        &self.0
+    }
+}
+
+impl Drop for ScopeGuard {
+    fn drop(&mut self) {
+        let _ = self.0.clean_stale();
+    }
+}
+
 /// A prefix no other test or run uses.
-pub fn unique_scope(test: &str) -> RunScope {
+pub fn unique_scope(test: &str) -> ScopeGuard {
     let prefix = format!("t{}_{}_", std::process::id() % 100_000, test);
     let scope = RunScope::new(&prefix).expect("valid prefix");
     scope.remove_all_files().expect("clean start");
-    scope
+    ScopeGuard(scope)
 }
 
 pub fn scratch_dir(test: &str) -> PathBuf {
@@ -42,27 +60,63 @@ pub fn scratch_dir(test: &str) -> PathBuf {
     dir
 }
 
-/// Starts `hydractl run` with `args` in `scope`.
-pub fn start_run(scope: &RunScope, args: &[&str]) -> Child {
-    hydractl()
-        .arg("run")
-        .args(args)
-        .env(PREFIX_ENV, scope.prefix())
-        .env("RUST_BACKTRACE", "0")
-        .stdin(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("hydractl run starts")
+/// A `hydractl run` that is stopped when dropped, also when a test fails
+/// half-way: SIGTERM, then SIGKILL. Its supervisor and the loop die with it
+/// (each process has a parent-death signal).
+pub struct RunGuard(pub Child);
+
+impl RunGuard {
+    pub fn id(&self) -> u32 {
+        self.0.id()
+    }
 }
 
-pub fn run_to_end(scope: &RunScope, args: &[&str]) -> Output {
-    hydractl()
-        .arg("run")
-        .args(args)
-        .env(PREFIX_ENV, scope.prefix())
-        .env("RUST_BACKTRACE", "0")
-        .output()
-        .expect("hydractl run runs")
+impl Drop for RunGuard {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            signal(self.0.id(), nix::sys::signal::Signal::SIGTERM);
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while Instant::now() < deadline && matches!(self.0.try_wait(), Ok(None)) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// Starts `hydractl run` with `args` in `scope`.
+pub fn start_run(scope: &RunScope, args: &[&str]) -> RunGuard {
+    RunGuard(
+        hydractl()
+            .arg("run")
+            .args(args)
+            .env(PREFIX_ENV, scope.prefix())
+            .env("RUST_BACKTRACE", "0")
+            .stdin(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("hydractl run starts"),
+    )
+}
+
+/// Runs `hydractl run` to its end, or fails the test after `timeout`.
+pub fn run_to_end(scope: &RunScope, args: &[&str], timeout: Duration) -> Output {
+    let mut guard = RunGuard(
+        hydractl()
+            .arg("run")
+            .args(args)
+            .env(PREFIX_ENV, scope.prefix())
+            .env("RUST_BACKTRACE", "0")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("hydractl run starts"),
+    );
+    wait_exit(&mut guard.0, timeout);
+    let child = std::mem::replace(&mut guard.0, Command::new("true").spawn().expect("true"));
+    child.wait_with_output().expect("output")
 }
 
 pub fn wait_exit(child: &mut Child, timeout: Duration) -> std::process::ExitStatus {

@@ -19,6 +19,7 @@ fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
     let out = run_to_end(
         &scope,
         &["--duration", "10", "--summary-json", live.to_str().expect("path")],
+        Duration::from_secs(40),
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let sim = hydractl()
@@ -81,15 +82,28 @@ fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
             signal(pid, Signal::SIGKILL);
             // The valve goes neutral, flagged stale, within a few periods.
             let mut neutral_after = None;
+            let (mut samples, mut last) = (0, None);
             while killed.elapsed() < Duration::from_secs(1) && neutral_after.is_none() {
                 while let Ok(Some(v)) = observer.valve.next() {
+                    samples += 1;
+                    last = Some(v);
                     if v.faults & fault::STALE != 0 && v.command == 0.0 {
                         neutral_after = Some(killed.elapsed());
                         break;
                     }
                 }
             }
-            let neutral_after = neutral_after.expect("the valve went neutral");
+            let neutral_after = neutral_after.unwrap_or_else(|| {
+                std::thread::sleep(Duration::from_millis(150));
+                let status = observer.status.latest().ok().flatten().map(|s| {
+                    s.processes[..s.process_count as usize]
+                        .iter()
+                        .map(|p| format!("{} pid {} restarts {}", hydractl_samples::name_str(&p.name), p.pid, p.restarts))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                });
+                panic!("{name} (pid {pid}): the valve did not go neutral; {samples} valve samples, last {last:?}; status: {status:?}")
+            });
             assert!(
                 neutral_after < Duration::from_millis(50),
                 "{name}: neutral after {neutral_after:?}"
@@ -110,7 +124,7 @@ fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
         }
     }
     signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run, Duration::from_secs(10)).success());
+    assert!(wait_exit(&mut run.0, Duration::from_secs(10)).success());
     assert!(!scope.has_files(), "nothing left after the stop");
 }
 
@@ -125,7 +139,7 @@ fn ctrl_c_stops_everything_and_leaves_no_files() {
     }
     assert!(scope.has_files());
     signal(run.id(), Signal::SIGINT);
-    assert!(wait_exit(&mut run, Duration::from_secs(10)).success());
+    assert!(wait_exit(&mut run.0, Duration::from_secs(10)).success());
     assert!(
         !scope.has_files(),
         "left: {:?} and {}",
@@ -159,7 +173,7 @@ fn a_start_over_the_files_of_a_killed_run_works() {
     for &pid in &pids {
         signal(pid, Signal::SIGKILL);
     }
-    let _ = run.wait();
+    let _ = run.0.wait();
     std::thread::sleep(Duration::from_millis(200));
     assert!(scope.has_files(), "the killed run left its files");
     let dir = scratch_dir("stale");
@@ -167,6 +181,7 @@ fn a_start_over_the_files_of_a_killed_run_works() {
     let out = run_to_end(
         &scope,
         &["--duration", "2", "--summary-json", summary.to_str().expect("path")],
+        Duration::from_secs(30),
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(json(&summary)["cycles"].as_u64().expect("cycles") > 1_500);

@@ -105,7 +105,7 @@ impl Default for Timing {
             integration_rate_hz: 10_000.0,
             loop_cpu: None,
             stall_policy: StallPolicy::Pause,
-            command_timeout_periods: 3.0,
+            command_timeout_periods: 1.5,
         }
     }
 }
@@ -222,7 +222,7 @@ impl Default for SupervisorConfig {
     fn default() -> Self {
         Self {
             hung_after_ms: 50,
-            restart_backoff_initial_ms: 10,
+            restart_backoff_initial_ms: 30,
             restart_backoff_max_ms: 2000,
             healthy_after_ms: 5000,
             stop_timeout_ms: 1000,
