@@ -47,7 +47,9 @@ fn main() -> Result<()> {
                     }),
                     Wake::Input(SENSOR) => neutral
                         .map(|(command, faults)| (newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults)),
-                    Wake::Tick if last_input.elapsed() >= silence_timeout => {
+                    // Before the first reading the loop has not started and the
+                    // valve is neutral anyway: silence means something only after.
+                    Wake::Tick if newest.sensor_time_ns != 0 && last_input.elapsed() >= silence_timeout => {
                         // Silent again after another timeout: say so again.
                         last_input = Instant::now();
                         let (command, faults) = stage.on_silence();

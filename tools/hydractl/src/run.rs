@@ -200,7 +200,10 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 if last_valve_seq.is_none_or(|last| v.sensor_seq > last) {
                     cycles += 1;
                     last_valve_seq = Some(v.sensor_seq);
-                    latency.record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
+                    // Only a sample derived from a reading has a latency.
+                    if v.sensor_time_ns != 0 {
+                        latency.record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
+                    }
                 }
                 if v.faults != 0 {
                     faults += 1;
