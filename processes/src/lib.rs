@@ -88,18 +88,6 @@ pub fn start(name: &str) -> Result<Started> {
     Ok(Started { config, bus, args })
 }
 
-/// Runs one stage step inside a loop callback: an error stops the loop and
-/// is kept for the process to return.
-pub fn guarded(failure: &mut Option<anyhow::Error>, step: impl FnOnce() -> Result<()>) -> hydractl_bus::Flow {
-    match step() {
-        Ok(()) => hydractl_bus::Flow::Continue,
-        Err(e) => {
-            *failure = Some(e);
-            hydractl_bus::Flow::Stop
-        }
-    }
-}
-
 /// The trajectory's time for a sensor sequence number: the loop's own
 /// clock, so that a restarted stage continues the same reference.
 pub fn time_of(seq: u64, config: &Config) -> f64 {

@@ -46,14 +46,6 @@ pub const PIPELINE: [(&str, &str, &str); 6] = [
     ),
 ];
 
-/// The directory of the running executable, where its sibling binaries are.
-pub fn binary_dir() -> Result<PathBuf> {
-    let exe = std::env::current_exe().context("locating the running executable")?;
-    exe.parent()
-        .map(Path::to_path_buf)
-        .context("the executable has no parent directory")
-}
-
 /// Why a child is down.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DownReason {

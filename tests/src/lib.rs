@@ -85,15 +85,22 @@ impl Drop for RunGuard {
     }
 }
 
+/// `hydractl run` with `args` in `scope`.
+fn run_command(scope: &RunScope, args: &[&str]) -> Command {
+    let mut command = hydractl();
+    command
+        .arg("run")
+        .args(args)
+        .env(PREFIX_ENV, scope.prefix())
+        .env("RUST_BACKTRACE", "0")
+        .stdin(Stdio::null());
+    command
+}
+
 /// Starts `hydractl run` with `args` in `scope`.
 pub fn start_run(scope: &RunScope, args: &[&str]) -> RunGuard {
     RunGuard(
-        hydractl()
-            .arg("run")
-            .args(args)
-            .env(PREFIX_ENV, scope.prefix())
-            .env("RUST_BACKTRACE", "0")
-            .stdin(Stdio::null())
+        run_command(scope, args)
             .stderr(Stdio::null())
             .spawn()
             .expect("hydractl run starts"),
@@ -103,12 +110,7 @@ pub fn start_run(scope: &RunScope, args: &[&str]) -> RunGuard {
 /// Runs `hydractl run` to its end, or fails the test after `timeout`.
 pub fn run_to_end(scope: &RunScope, args: &[&str], timeout: Duration) -> Output {
     let mut guard = RunGuard(
-        hydractl()
-            .arg("run")
-            .args(args)
-            .env(PREFIX_ENV, scope.prefix())
-            .env("RUST_BACKTRACE", "0")
-            .stdin(Stdio::null())
+        run_command(scope, args)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()

@@ -18,7 +18,7 @@ fn main() -> Result<()> {
     let (mut reference_velocity, mut valve_command) = (0.0, 0.0);
     let mut failure = None;
     run_single(sensor.listener(), &started.bus, || {
-        hydractl_processes::guarded(&mut failure, || {
+        hydractl_bus::guarded(&mut failure, || {
             if let Some(p) = position.latest()? {
                 reference_velocity = p.reference_velocity;
             }

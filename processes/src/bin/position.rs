@@ -25,7 +25,7 @@ fn main() -> Result<()> {
     let mut latest_sensor = SensorSample::default();
     let mut failure = None;
     run_single(friction.listener(), &started.bus, || {
-        hydractl_processes::guarded(&mut failure, || {
+        hydractl_bus::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;
             }

@@ -15,7 +15,7 @@ fn main() -> Result<()> {
     let out: Outlet<SensorSample> = Outlet::open(&started.bus, service::SENSOR)?;
     let mut failure = None;
     run_single(device.listener(), &started.bus, || {
-        hydractl_processes::guarded(&mut failure, || {
+        hydractl_bus::guarded(&mut failure, || {
             let Some(reading) = device.try_read()? else {
                 return Ok(());
             };

@@ -6,8 +6,8 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use hydractl_bus::{clock, run_loop, Bus, Flow, Outlet, Reader, RunScope};
-use hydractl_processes::supervision::{binary_dir, Supervised, PIPELINE};
+use hydractl_bus::{clock, run_loop, Bus, Outlet, Reader, RunScope};
+use hydractl_processes::supervision::{Supervised, PIPELINE};
 use hydractl_samples::{
     fixed_name, service, FrictionSample, PlantReading, PositionSample, ProcessStatus, SensorSample, SupervisorStatus,
     TorqueSample, ValveSample, MAX_PROCESSES,
@@ -60,7 +60,7 @@ fn main() -> Result<()> {
     // Over what a crashed run left: its dead nodes (its files, when nothing
     // of it was alive, `hydractl run` removed before starting us).
     scope.remove_dead_nodes()?;
-    let dir = binary_dir()?;
+    let dir = hydractl_bus::binary_dir()?;
     let mut children: Vec<Supervised> = PIPELINE
         .iter()
         .map(|(name, _, _)| Supervised::new(name, &dir, started.args.config.clone()))
@@ -100,7 +100,7 @@ fn supervise(
     let mut last_status = Instant::now();
     let mut failure = None;
     run_loop(&[], Some(Duration::from_millis(5)), |_| {
-        let mut step = || -> Result<()> {
+        hydractl_bus::guarded(&mut failure, || -> Result<()> {
             let now = Instant::now();
             let advanced = heartbeats.advanced(&mut last_reading)?;
             // Whether each output had paused, before this round's news.
@@ -166,14 +166,7 @@ fn supervise(
                 status.publish(status_of(children, own_pid, now, hung_after))?;
             }
             Ok(())
-        };
-        match step() {
-            Ok(()) => Flow::Continue,
-            Err(e) => {
-                failure = Some(e);
-                Flow::Stop
-            }
-        }
+        })
     })?;
     failure.map_or(Ok(()), Err)
 }

@@ -23,7 +23,7 @@ fn main() -> Result<()> {
     let (mut latest_sensor, mut latest_friction) = (SensorSample::default(), FrictionSample::default());
     let mut failure = None;
     run_single(position.listener(), &started.bus, || {
-        hydractl_processes::guarded(&mut failure, || {
+        hydractl_bus::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;
             }

@@ -30,7 +30,7 @@ fn main() -> Result<()> {
         &[torque.listener(), sensor.listener()],
         Some(silence_timeout / 4),
         |wake| {
-            hydractl_processes::guarded(&mut failure, || {
+            hydractl_bus::guarded(&mut failure, || {
                 // Every reading counts towards the guard, the one that woke us
                 // and any that arrived with it.
                 let mut neutral = None;

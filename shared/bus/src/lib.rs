@@ -12,10 +12,23 @@ mod wait;
 
 pub use outlet::{Inlet, Outlet, Reader};
 pub use scope::{quiet_ipc_logging, Bus, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
-pub use wait::{run_loop, run_single, Flow, LoopExit, Wake};
+pub use wait::{guarded, run_loop, run_single, Flow, LoopExit, Wake};
+
+/// The directory of the running executable, where cargo puts its sibling
+/// binaries (the supervisor, the processes).
+pub fn binary_dir() -> Result<std::path::PathBuf, BusError> {
+    let exe = std::env::current_exe().map_err(|source| BusError::Executable { source })?;
+    exe.parent()
+        .map(std::path::Path::to_path_buf)
+        .ok_or(BusError::Executable {
+            source: std::io::Error::other("the executable has no parent directory"),
+        })
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum BusError {
+    #[error("cannot locate the running executable: {source}")]
+    Executable { source: std::io::Error },
     #[error("iceoryx2: {what}: {detail}")]
     Ipc { what: String, detail: String },
     #[error("invalid run prefix `{0}`: use letters, digits and `_`, at most 32")]

@@ -59,33 +59,27 @@ impl RunScope {
     /// (crashed or killed), so their services can be opened afresh.
     /// Returns how many dead nodes were cleaned.
     pub fn remove_dead_nodes(&self) -> Result<usize, BusError> {
-        let config = self.config()?;
         let mut cleaned = 0;
-        Node::<ipc::Service>::list(&config, |state| {
+        self.each_node(|state| {
             if let NodeState::Dead(view) = state {
                 if view.try_remove_stale_resources().is_ok() {
                     cleaned += 1;
                 }
             }
-            CallbackProgression::Continue
-        })
-        .map_err(|e| BusError::ipc("listing nodes", e))?;
+        })?;
         Ok(cleaned)
     }
 
     /// The names of this run's live nodes.
     pub fn live_node_names(&self) -> Result<Vec<String>, BusError> {
-        let config = self.config()?;
         let mut names = Vec::new();
-        Node::<ipc::Service>::list(&config, |state| {
+        self.each_node(|state| {
             if let NodeState::Alive(view) = state {
                 if let Some(details) = view.details() {
                     names.push(details.name().as_str().to_owned());
                 }
             }
-            CallbackProgression::Continue
-        })
-        .map_err(|e| BusError::ipc("listing nodes", e))?;
+        })?;
         Ok(names)
     }
 
@@ -101,15 +95,12 @@ impl RunScope {
 
     /// How many nodes of this run are alive.
     pub fn live_nodes(&self) -> Result<usize, BusError> {
-        let config = self.config()?;
         let mut alive = 0;
-        Node::<ipc::Service>::list(&config, |state| {
+        self.each_node(|state| {
             if let NodeState::Alive(_) = state {
                 alive += 1;
             }
-            CallbackProgression::Continue
-        })
-        .map_err(|e| BusError::ipc("listing nodes", e))?;
+        })?;
         Ok(alive)
     }
 
@@ -156,6 +147,15 @@ impl RunScope {
                     .collect()
             })
             .unwrap_or_default()
+    }
+
+    /// Calls `visit` with every node of this run, alive or dead.
+    fn each_node(&self, mut visit: impl FnMut(NodeState<ipc::Service>)) -> Result<(), BusError> {
+        Node::<ipc::Service>::list(&self.config()?, |state| {
+            visit(state);
+            CallbackProgression::Continue
+        })
+        .map_err(|e| BusError::ipc("listing nodes", e))
     }
 
     /// Whether anything of this run is left on disk.

@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hydractl_bus::{clock, placement, quiet_ipc_logging, run_loop, Bus, Flow, Inlet, Outlet, RunScope, PREFIX_ENV};
+use hydractl_bus::{clock, placement, quiet_ipc_logging, run_loop, Bus, Inlet, Outlet, RunScope, PREFIX_ENV};
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
 use hydractl_sim::stack::{
@@ -403,21 +403,14 @@ pub fn stage(args: StageArgs) -> Result<()> {
             crate::emit("ready\n")?;
             let mut failure = None;
             let mut on_input = || {
-                let mut step = || -> Result<()> {
+                hydractl_bus::guarded(&mut failure, || -> Result<()> {
                     while let Some(mut s) = input.next()? {
                         stage.apply(&mut s);
                         s.stamps_ns[stamp] = clock::now_ns();
                         output.publish(s)?;
                     }
                     Ok(())
-                };
-                match step() {
-                    Ok(()) => Flow::Continue,
-                    Err(e) => {
-                        failure = Some(e);
-                        Flow::Stop
-                    }
-                }
+                })
             };
             if std::env::var("HYDRACTL_BENCH_WAITSET").is_ok() {
                 run_loop(&[input.listener()], None, |_| on_input())?;

@@ -127,11 +127,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         );
     }
     scope.clean_stale()?;
-    let dir = std::env::current_exe()
-        .context("locating the running executable")?
-        .parent()
-        .map(std::path::Path::to_path_buf)
-        .context("locating the supervisor binary")?;
+    let dir = hydractl_bus::binary_dir()?;
     let mut command = Command::new(dir.join("supervisor"));
     if let Some(config) = &args.config {
         command.arg("--config").arg(config);
