@@ -2,7 +2,9 @@
 //! sensors, fixed-step integration and linearization. No IPC here.
 
 pub mod effects;
+pub mod hydraulics;
 mod linearize;
+pub mod mechanics;
 mod params;
 mod plant;
 mod sensor;

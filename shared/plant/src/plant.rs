@@ -8,6 +8,8 @@
 //! is exactly zero while stuck and never flickers in sign.
 
 use crate::effects::Effects;
+use crate::hydraulics;
+use crate::mechanics::{self, Motion};
 use crate::{PlantError, PlantParams};
 
 pub(crate) const STATES: usize = 8;
@@ -215,7 +217,14 @@ impl Plant {
 
     fn integrate_one_step(&mut self, input: f64) {
         let h = self.step;
-        let direction = self.friction_direction(input);
+        let (direction, stuck) = mechanics::friction_direction(
+            &self.params,
+            &self.effects,
+            &motion_of(&self.state),
+            self.torque(),
+            self.stuck,
+        );
+        self.stuck = stuck;
         let x = self.state;
         let k1 = self.derivative(&x, input, direction);
         let k2 = self.derivative(&add_scaled(&x, &k1, 0.5 * h), input, direction);
@@ -226,85 +235,20 @@ impl Plant {
             next[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
         }
         self.enforce_bounds(&mut next);
-        if let Some(friction) = self.effects.coulomb_friction {
-            if self.stuck {
-                next[VELOCITY] = 0.0;
-                next[ANGLE] = x[ANGLE];
-            } else if next[VELOCITY] * direction <= 0.0 {
-                // The velocity reached or crossed zero within the step: stop
-                // there, and stick if friction can hold the net torque.
-                next[VELOCITY] = 0.0;
-                let net = self.net_torque_on_actuator(&next, input);
-                self.stuck = net.abs() <= friction.breakaway;
-            }
-        }
-        if self.effects.load_flexibility.is_none() {
-            next[LOAD_ANGLE] = next[ANGLE];
-            next[LOAD_VELOCITY] = next[VELOCITY];
-        }
+        let mut motion = motion_of(&next);
+        let torque = self.params.displacement * (next[P_A] - next[P_B]);
+        self.stuck = mechanics::settle_friction(
+            &self.params,
+            &self.effects,
+            &motion_of(&x),
+            &mut motion,
+            torque,
+            self.stuck,
+            direction,
+        );
+        next[ANGLE..=LOAD_VELOCITY].copy_from_slice(&motion);
         self.state = next;
         self.time += h;
-    }
-
-    /// The sign of the friction torque's opposition for this step, deciding
-    /// breakaway from stick: +1 or −1 while sliding, 0 while stuck.
-    fn friction_direction(&mut self, input: f64) -> f64 {
-        let Some(friction) = self.effects.coulomb_friction else {
-            return 0.0;
-        };
-        let velocity = self.state[VELOCITY];
-        if self.stuck || velocity == 0.0 {
-            let net = self.net_torque_on_actuator(&self.state, input);
-            if net.abs() > friction.breakaway {
-                self.stuck = false;
-                return net.signum();
-            }
-            self.stuck = true;
-            return 0.0;
-        }
-        velocity.signum()
-    }
-
-    /// Everything acting on the actuator's rotor except Coulomb friction, N·m.
-    fn net_torque_on_actuator(&self, x: &[f64; STATES], _input: f64) -> f64 {
-        let p = &self.params;
-        let hydraulic = p.displacement * (x[P_A] - x[P_B]);
-        let viscous = p.viscous_friction * x[VELOCITY];
-        let load = match self.effects.load_flexibility {
-            Some(flex) => flex.coupling_torque(x[ANGLE] - x[LOAD_ANGLE], x[VELOCITY] - x[LOAD_VELOCITY]),
-            None => self.effects.gravity_load.map_or(0.0, |g| g.torque(x[ANGLE])),
-        };
-        hydraulic - viscous - load
-    }
-
-    /// Flow into chamber A and out of chamber B, m³/s (eq. 9, or orifice flow).
-    fn flows(&self, x: &[f64; STATES]) -> (f64, f64) {
-        let p = &self.params;
-        let mut opening = x[SPOOL];
-        if let Some(deadzone) = self.effects.deadzone {
-            opening = deadzone.opening(opening);
-        }
-        let gain = p.flow_gain * self.effects.asymmetric_gain.map_or(1.0, |a| a.gain_factor(opening));
-        let centre_a = 2.0 * p.flow_pressure_coefficient * (x[P_A] - 0.5 * p.supply_pressure);
-        let centre_b = 2.0 * p.flow_pressure_coefficient * (x[P_B] - 0.5 * p.supply_pressure);
-        let (metered_a, metered_b) = if self.effects.orifice_flow.is_some() {
-            let nominal = 0.5 * (p.supply_pressure - p.tank_pressure);
-            let drop = |high: f64, low: f64| crate::effects::OrificeFlow::drop_factor(high - low, nominal);
-            if opening >= 0.0 {
-                (
-                    2.0 * gain * opening * drop(p.supply_pressure, x[P_A]),
-                    2.0 * gain * opening * drop(x[P_B], p.tank_pressure),
-                )
-            } else {
-                (
-                    2.0 * gain * opening * drop(x[P_A], p.tank_pressure),
-                    2.0 * gain * opening * drop(p.supply_pressure, x[P_B]),
-                )
-            }
-        } else {
-            (2.0 * gain * opening, 2.0 * gain * opening)
-        };
-        (metered_a - centre_a, metered_b + centre_b)
     }
 
     /// The state's time derivative for spool input `input`; `direction` is
@@ -313,71 +257,26 @@ impl Plant {
         let p = &self.params;
         let mut dx = [0.0; STATES];
 
-        let wn = p.valve_natural_frequency;
-        dx[SPOOL] = x[SPOOL_RATE];
-        dx[SPOOL_RATE] = wn * wn * (input - x[SPOOL]) - 2.0 * p.valve_damping * wn * x[SPOOL_RATE];
-        if let Some(saturation) = self.effects.saturation {
-            let at_stop = x[SPOOL].abs() >= saturation.limit;
-            if at_stop && x[SPOOL] * dx[SPOOL_RATE] > 0.0 {
-                dx[SPOOL_RATE] = 0.0;
-            }
-            if at_stop && x[SPOOL] * x[SPOOL_RATE] > 0.0 {
-                dx[SPOOL] = 0.0;
-            }
-        }
+        (dx[SPOOL], dx[SPOOL_RATE]) = hydraulics::spool_rates(p, &self.effects, x[SPOOL], x[SPOOL_RATE], input);
+        (dx[P_A], dx[P_B]) = hydraulics::pressure_rates(p, &self.effects, x[SPOOL], x[P_A], x[P_B], x[VELOCITY]);
 
-        let (q_a, q_b) = self.flows(x);
-        let motion_flow = p.displacement * x[VELOCITY];
-        dx[P_A] = p.bulk_modulus / p.volume_a * (-p.leakage * x[P_A] - motion_flow + q_a);
-        dx[P_B] = p.bulk_modulus / p.volume_b * (-p.leakage * x[P_B] + motion_flow - q_b);
-        for i in [P_A, P_B] {
-            if (x[i] <= p.tank_pressure && dx[i] < 0.0) || (x[i] >= p.supply_pressure && dx[i] > 0.0) {
-                dx[i] = 0.0;
-            }
-        }
-
-        let stuck = self.effects.coulomb_friction.is_some() && direction == 0.0;
-        let friction = match self.effects.coulomb_friction {
-            Some(f) if !stuck => direction * f.sliding_level(x[VELOCITY].abs()),
-            _ => 0.0,
-        };
-        let net = self.net_torque_on_actuator(x, input);
-        match self.effects.load_flexibility {
-            Some(flex) => {
-                let rotor_inertia = p.inertia * (1.0 - flex.load_fraction);
-                let load_inertia = p.inertia * flex.load_fraction;
-                let coupling = flex.coupling_torque(x[ANGLE] - x[LOAD_ANGLE], x[VELOCITY] - x[LOAD_VELOCITY]);
-                let gravity = self.effects.gravity_load.map_or(0.0, |g| g.torque(x[LOAD_ANGLE]));
-                dx[LOAD_ANGLE] = x[LOAD_VELOCITY];
-                dx[LOAD_VELOCITY] = (coupling - gravity) / load_inertia;
-                if !stuck {
-                    dx[ANGLE] = x[VELOCITY];
-                    dx[VELOCITY] = (net - friction) / rotor_inertia;
-                }
-            }
-            None => {
-                if !stuck {
-                    dx[ANGLE] = x[VELOCITY];
-                    dx[VELOCITY] = (net - friction) / p.inertia;
-                }
-            }
-        }
+        let torque = p.displacement * (x[P_A] - x[P_B]);
+        let motion = mechanics::motion_rates(p, &self.effects, &motion_of(x), torque, direction);
+        dx[ANGLE..=LOAD_VELOCITY].copy_from_slice(&motion);
         dx
     }
 
     fn enforce_bounds(&self, x: &mut [f64; STATES]) {
-        let p = &self.params;
-        x[P_A] = x[P_A].clamp(p.tank_pressure, p.supply_pressure);
-        x[P_B] = x[P_B].clamp(p.tank_pressure, p.supply_pressure);
-        if let Some(saturation) = self.effects.saturation {
-            if x[SPOOL].abs() > saturation.limit {
-                x[SPOOL] = saturation.clamp(x[SPOOL]);
-                if x[SPOOL] * x[SPOOL_RATE] > 0.0 {
-                    x[SPOOL_RATE] = 0.0;
-                }
-            }
-        }
+        x[P_A] = hydraulics::bound_pressure(&self.params, x[P_A]);
+        x[P_B] = hydraulics::bound_pressure(&self.params, x[P_B]);
+        let (mut spool, mut rate) = (x[SPOOL], x[SPOOL_RATE]);
+        hydraulics::limit_spool(&self.effects, &mut spool, &mut rate);
+        (x[SPOOL], x[SPOOL_RATE]) = (spool, rate);
     }
+}
+
+fn motion_of(x: &[f64; STATES]) -> Motion {
+    [x[ANGLE], x[VELOCITY], x[LOAD_ANGLE], x[LOAD_VELOCITY]]
 }
 
 fn add_scaled(x: &[f64; STATES], k: &[f64; STATES], h: f64) -> [f64; STATES] {
