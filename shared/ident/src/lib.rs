@@ -6,3 +6,5 @@ pub mod tf;
 
 pub use data::{DataError, Dataset};
 pub use tf::{fit_percent, identify_tf, IdentError, Method, TfFit, TfOptions};
+pub mod greybox;
+pub mod lm;

@@ -1,6 +1,8 @@
 //! `hydractl`: the command line of the hydraulic rotator control stack.
 
 mod bench_latency;
+mod model;
+mod report;
 mod run;
 
 use std::path::{Path, PathBuf};
@@ -32,6 +34,9 @@ enum Command {
     /// Identification from measured data.
     #[command(subcommand)]
     Ident(IdentCommand),
+    /// The grey-box model against measurements: fit, compare, diagnose, add an effect, report.
+    #[command(subcommand)]
+    Model(model::ModelCommand),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -144,6 +149,14 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
+    /// Wall time of `model diagnose` over the whole catalog, by data length.
+    Diagnose {
+        /// Data lengths to time, s of 1 kHz data.
+        #[arg(long, value_delimiter = ',', default_values_t = [15.0, 30.0, 60.0])]
+        durations: Vec<f64>,
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+    },
     /// Sensor-to-valve latency of the five stages over iceoryx2 between
     /// processes, over UDP loopback between processes, and as function calls.
     Latency(bench_latency::LatencyArgs),
@@ -168,7 +181,9 @@ fn main() -> Result<()> {
         Command::Effects => emit(&effects_table()),
         Command::Linearize(args) => linearize(args),
         Command::Ident(IdentCommand::Tf(args)) => ident_tf(args),
+        Command::Model(command) => model::run(command),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
+        Command::Bench(BenchCommand::Diagnose { durations, repeat }) => model::bench_diagnose(&durations, repeat),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
         Command::BenchStage(args) => bench_latency::stage(args),
     }

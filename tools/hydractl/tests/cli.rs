@@ -187,3 +187,163 @@ fn ident_tf_recovers_the_plants_linearization_from_closed_loop_data() {
     );
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// 12 s of closed-loop data with a hidden dead-zone, as `hydractl sim` writes it.
+fn deadzone_data(dir: &std::path::Path) -> PathBuf {
+    let csv = dir.join("deadzone.csv");
+    let out = hydractl()
+        .args([
+            "sim",
+            "--duration",
+            "12",
+            "--seed",
+            "4",
+            "--effect",
+            "deadzone:width=0.08",
+            "--out",
+        ])
+        .arg(&csv)
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    csv
+}
+
+fn run_ok(command: &mut Command) -> String {
+    let out = command.output().expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).expect("utf-8")
+}
+
+#[test]
+fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
+    let dir = scratch("model");
+    let csv = deadzone_data(&dir);
+    let baseline = dir.join("baseline.toml");
+    run_ok(
+        hydractl()
+            .args(["model", "fit", "--data"])
+            .arg(&csv)
+            .arg("--out")
+            .arg(&baseline),
+    );
+
+    let json = run_ok(
+        hydractl()
+            .args(["model", "diagnose", "--json", "--data"])
+            .arg(&csv)
+            .arg("--model")
+            .arg(&baseline),
+    );
+    let diagnosis: serde_json::Value = serde_json::from_str(&json).expect("json");
+    assert!(diagnosis["baseline"]["validation_nrmse"].is_number(), "{diagnosis}");
+    for output in ["p_a", "p_b", "theta"] {
+        assert!(diagnosis["baseline"]["fit_percent"][output].is_number(), "{output}");
+    }
+    let first = &diagnosis["candidates"][0];
+    assert_eq!(first["effect"], "deadzone", "{diagnosis}");
+    assert_eq!(first["significant"], true);
+    for key in ["output", "evidence"] {
+        assert!(first[key].is_string(), "{key}");
+    }
+    let before = first["validation_nrmse_before"].as_f64().expect("number");
+    let after = first["validation_nrmse_after"].as_f64().expect("number");
+    assert!(after < 0.5 * before, "{before} → {after}");
+    let width = first["params"]["width"].as_f64().expect("width");
+    assert!((width - 0.08).abs() < 0.016, "{width}");
+    assert_eq!(diagnosis["candidates"].as_array().map(Vec::len), Some(10));
+
+    let added = dir.join("added.toml");
+    let text = run_ok(
+        hydractl()
+            .args(["model", "add", "deadzone", "--data"])
+            .arg(&csv)
+            .arg("--model")
+            .arg(&baseline)
+            .arg("--out")
+            .arg(&added),
+    );
+    assert!(text.contains("before") && text.contains("after"), "{text}");
+    let model = std::fs::read_to_string(&added).expect("model");
+    assert!(model.contains("[effects.deadzone]"), "{model}");
+
+    let json = run_ok(
+        hydractl()
+            .args(["model", "compare", "--json", "--data"])
+            .arg(&csv)
+            .arg("--model")
+            .arg(&added),
+    );
+    let comparison: serde_json::Value = serde_json::from_str(&json).expect("json");
+    let outputs = comparison["outputs"].as_array().expect("outputs");
+    assert_eq!(outputs.len(), 3);
+    assert!(
+        outputs
+            .iter()
+            .all(|o| o["fit_percent"].as_f64().is_some_and(|f| f > 90.0)),
+        "{comparison}"
+    );
+    assert!(comparison["regimes"].as_array().is_some_and(|r| r.len() >= 6));
+    assert!(comparison["residual_tests"].as_array().is_some_and(|r| r.len() == 6));
+
+    let report = dir.join("report.html");
+    run_ok(
+        hydractl()
+            .args(["model", "report", "--data"])
+            .arg(&csv)
+            .arg("--model")
+            .arg(&added)
+            .arg("--out")
+            .arg(&report),
+    );
+    let html = std::fs::read_to_string(&report).expect("report");
+    assert!(html.matches("<svg").count() >= 10, "plots in the report");
+    assert!(
+        html.contains("validation NRMSE per step"),
+        "the error falling, step by step"
+    );
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn model_input_defects_name_the_file_line_and_column() {
+    let dir = scratch("model-bad");
+    let csv = dir.join("bad.csv");
+    std::fs::write(&csv, "t,u,p_a,p_b,theta\n0,0,70,70,0\n0.001,0,70,NaN,0\n").expect("write");
+    let out = hydractl()
+        .args(["model", "fit", "--data"])
+        .arg(&csv)
+        .arg("--out")
+        .arg(dir.join("m.toml"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.csv:3") && err.contains("p_b"), "{err}");
+
+    std::fs::write(&csv, "t,u,p_a,theta\n0,0,70,0\n").expect("write");
+    let out = hydractl()
+        .args(["model", "diagnose", "--data"])
+        .arg(&csv)
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("p_b"), "{err}");
+
+    let model = dir.join("broken.toml");
+    std::fs::write(&model, "[plant]\ninertia = -1\n").expect("write");
+    let good = deadzone_data(&dir);
+    let out = hydractl()
+        .args(["model", "compare", "--data"])
+        .arg(&good)
+        .arg("--model")
+        .arg(&model)
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("broken.toml") && err.contains("inertia"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -1,0 +1,605 @@
+//! Fitting the grey-box model: output-error least squares on the estimation
+//! segment, part by part, with a robust (Huber) loss so that the moments a
+//! pressure sits at tank or supply do not steer the fit.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use hydractl_plant::effects::Effects;
+use hydractl_plant::{Effect, EffectKind, EffectsConfig, PlantParams};
+
+use super::{predict_hydraulic, predict_mechanical, HistoryStep, Model, ModelError, Part, Prediction, Signals};
+use crate::lm::{self, LmOptions};
+
+/// Iterations spent on each start of an effect before the best goes on.
+const SCREENING_ITERATIONS: usize = 3;
+
+#[derive(Debug, Clone, Copy)]
+pub struct FitOptions {
+    /// The first fraction of the record estimates; the rest validates.
+    pub estimation_fraction: f64,
+    pub max_iterations: usize,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        Self {
+            estimation_fraction: 0.7,
+            max_iterations: 15,
+        }
+    }
+}
+
+/// A parameter the fit may move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Knob {
+    BulkModulus,
+    FlowGain,
+    FlowPressureCoefficient,
+    Leakage,
+    ValveNaturalFrequency,
+    ValveDamping,
+    Inertia,
+    ViscousFriction,
+    Effect(EffectKind, &'static str),
+}
+
+/// How a knob is scaled for the optimizer: by its logarithm (positive
+/// quantities spanning decades) or divided by a typical size.
+#[derive(Debug, Clone, Copy)]
+enum Scale {
+    Log { min: f64, max: f64 },
+    Linear { unit: f64, min: f64, max: f64 },
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Free {
+    knob: Knob,
+    scale: Scale,
+}
+
+const fn log(knob: Knob, min: f64, max: f64) -> Free {
+    Free {
+        knob,
+        scale: Scale::Log { min, max },
+    }
+}
+
+const fn linear(knob: Knob, unit: f64, min: f64, max: f64) -> Free {
+    Free {
+        knob,
+        scale: Scale::Linear { unit, min, max },
+    }
+}
+
+/// The baseline's free parameters of each part. Displacement, volumes and
+/// supply pressure are the data sheet's and stay fixed: they set the scale
+/// that the data alone cannot (only β/V, D/J and the like are observable).
+fn baseline_knobs(part: Part) -> Vec<Free> {
+    match part {
+        Part::Hydraulic => vec![
+            log(Knob::BulkModulus, 1e7, 1e11),
+            log(Knob::FlowGain, 1e-7, 1e-2),
+            log(Knob::FlowPressureCoefficient, 1e-16, 1e-9),
+            log(Knob::Leakage, 1e-16, 1e-9),
+            log(Knob::ValveNaturalFrequency, 2.0, 2000.0),
+            log(Knob::ValveDamping, 0.02, 5.0),
+        ],
+        Part::Mechanical => vec![log(Knob::Inertia, 1e-3, 1e5), log(Knob::ViscousFriction, 1e-3, 1e5)],
+    }
+}
+
+/// An effect's free parameters. The encoder step is not among them: a
+/// staircase has no useful derivative, so it is read off the data instead.
+fn effect_knobs(kind: EffectKind) -> Vec<Free> {
+    let k = |key| Knob::Effect(kind, key);
+    match kind {
+        EffectKind::Deadzone => vec![linear(k("width"), 0.01, 0.0, 0.6)],
+        EffectKind::Saturation => vec![linear(k("limit"), 0.01, 0.02, 1.0)],
+        EffectKind::TimeDelay => vec![linear(k("delay_s"), 0.001, 0.0, 0.3)],
+        EffectKind::AsymmetricGain => vec![log(k("ratio"), 0.1, 10.0)],
+        EffectKind::OrificeFlow | EffectKind::Quantization => vec![],
+        EffectKind::CoulombFriction => vec![
+            log(k("coulomb"), 1e-2, 1e4),
+            log(k("breakaway"), 1e-2, 1e4),
+            log(k("stribeck_velocity"), 1e-4, 2.0),
+        ],
+        EffectKind::GravityLoad => vec![
+            linear(k("amplitude"), 10.0, -1e5, 1e5),
+            linear(k("offset"), 0.01, -std::f64::consts::PI, std::f64::consts::PI),
+        ],
+        EffectKind::Backlash => vec![linear(k("width"), 0.001, 0.0, 0.5)],
+        EffectKind::LoadFlexibility => vec![
+            log(k("stiffness"), 1.0, 1e6),
+            log(k("damping"), 1e-3, 1e6),
+            linear(k("load_fraction"), 0.01, 0.02, 0.98),
+        ],
+    }
+}
+
+/// A model under fit: parameters and effects as plain maps, so that any
+/// knob can be set and the catalog validates the result.
+#[derive(Debug, Clone)]
+struct Working {
+    plant: PlantParams,
+    effects: EffectsConfig,
+}
+
+impl Working {
+    fn value(&self, knob: Knob) -> f64 {
+        let p = &self.plant;
+        match knob {
+            Knob::BulkModulus => p.bulk_modulus,
+            Knob::FlowGain => p.flow_gain,
+            Knob::FlowPressureCoefficient => p.flow_pressure_coefficient,
+            Knob::Leakage => p.leakage,
+            Knob::ValveNaturalFrequency => p.valve_natural_frequency,
+            Knob::ValveDamping => p.valve_damping,
+            Knob::Inertia => p.inertia,
+            Knob::ViscousFriction => p.viscous_friction,
+            Knob::Effect(kind, key) => self
+                .effects
+                .0
+                .get(kind.name())
+                .and_then(|params| params.get(key))
+                .copied()
+                .or_else(|| kind.params().iter().find(|s| s.key == key).map(|s| s.default))
+                .unwrap_or(0.0),
+        }
+    }
+
+    fn set(&mut self, knob: Knob, value: f64) {
+        let p = &mut self.plant;
+        match knob {
+            Knob::BulkModulus => p.bulk_modulus = value,
+            Knob::FlowGain => p.flow_gain = value,
+            Knob::FlowPressureCoefficient => p.flow_pressure_coefficient = value,
+            Knob::Leakage => p.leakage = value,
+            Knob::ValveNaturalFrequency => p.valve_natural_frequency = value,
+            Knob::ValveDamping => p.valve_damping = value,
+            Knob::Inertia => p.inertia = value,
+            Knob::ViscousFriction => p.viscous_friction = value,
+            Knob::Effect(kind, key) => {
+                self.effects
+                    .0
+                    .entry(kind.name().to_owned())
+                    .or_default()
+                    .insert(key.to_owned(), value);
+            }
+        }
+    }
+
+    fn insert(&mut self, effect: Effect) {
+        self.effects.0.insert(
+            effect.kind().name().to_owned(),
+            effect.params().into_iter().map(|(k, v)| (k.to_owned(), v)).collect(),
+        );
+    }
+
+    fn has(&self, kind: EffectKind) -> bool {
+        self.effects.0.contains_key(kind.name())
+    }
+
+    fn build(&self) -> Option<Effects> {
+        self.plant.validate().ok()?;
+        self.effects.build().ok()
+    }
+}
+
+impl Free {
+    fn bounds(&self) -> (f64, f64) {
+        match self.scale {
+            Scale::Log { min, max } => (min.ln(), max.ln()),
+            Scale::Linear { unit, min, max } => (min / unit, max / unit),
+        }
+    }
+
+    fn scaled(self, value: f64) -> f64 {
+        let (lower, upper) = self.bounds();
+        let scaled = match self.scale {
+            Scale::Log { min, .. } => value.max(min).ln(),
+            Scale::Linear { unit, .. } => value / unit,
+        };
+        scaled.clamp(lower, upper)
+    }
+
+    fn unscaled(self, scaled: f64) -> f64 {
+        match self.scale {
+            Scale::Log { .. } => scaled.exp(),
+            Scale::Linear { unit, .. } => scaled * unit,
+        }
+    }
+}
+
+/// Normalizes a part's residuals by each output's spread, so that pressures
+/// and angle weigh alike, and applies the Huber loss.
+#[derive(Debug, Clone, Copy)]
+struct Loss {
+    spreads: [f64; 2],
+    /// Huber threshold on the normalized residual; infinite for plain least squares.
+    threshold: f64,
+}
+
+impl Loss {
+    fn residuals(&self, part: Part, signals: &Signals, prediction: &Prediction, range: Range<usize>) -> Vec<f64> {
+        let mut out = Vec::with_capacity(2 * range.len());
+        let mut push = |r: f64| {
+            let a = r.abs();
+            // √(2 ρ(r)) with the sign of r: least squares on these is Huber on r.
+            let robust = if a <= self.threshold {
+                r
+            } else {
+                r.signum() * (2.0 * self.threshold * a - self.threshold * self.threshold).sqrt()
+            };
+            out.push(robust);
+        };
+        match part {
+            Part::Hydraulic => {
+                for k in range {
+                    push((signals.p_a[k] - prediction.p_a[k]) / self.spreads[0]);
+                    push((signals.p_b[k] - prediction.p_b[k]) / self.spreads[1]);
+                }
+            }
+            Part::Mechanical => {
+                for k in range {
+                    push((signals.theta[k] - prediction.theta[k]) / self.spreads[0]);
+                }
+            }
+        }
+        out
+    }
+}
+
+pub(crate) fn spread(x: &[f64]) -> f64 {
+    let n = x.len().max(1) as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n)
+        .sqrt()
+        .max(1e-12)
+}
+
+fn predict_part(
+    part: Part,
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+) -> Prediction {
+    let mut prediction = Prediction::new(signals.len());
+    match part {
+        Part::Hydraulic => predict_hydraulic(plant, effects, signals, range, &mut prediction),
+        Part::Mechanical => predict_mechanical(plant, effects, signals, range, &mut prediction),
+    }
+    prediction
+}
+
+/// Fits one part's knobs on `range`; returns the fitted model and its cost.
+fn fit_part(
+    part: Part,
+    start: &Working,
+    knobs: &[Free],
+    signals: &Signals,
+    range: Range<usize>,
+    options: FitOptions,
+) -> Result<Working, ModelError> {
+    let spreads = match part {
+        Part::Hydraulic => [spread(&signals.p_a[range.clone()]), spread(&signals.p_b[range.clone()])],
+        Part::Mechanical => [spread(&signals.theta[range.clone()]), 1.0],
+    };
+    let plain = Loss {
+        spreads,
+        threshold: f64::INFINITY,
+    };
+    let effects = start
+        .build()
+        .ok_or_else(|| ModelError::Fit("the starting model is not valid".to_owned()))?;
+    let initial = plain.residuals(
+        part,
+        signals,
+        &predict_part(part, &start.plant, &effects, signals, range.clone()),
+        range.clone(),
+    );
+    let loss = Loss {
+        spreads,
+        threshold: 1.345 * 1.4826 * median_abs(&initial).max(1e-9),
+    };
+    let theta0: Vec<f64> = knobs.iter().map(|f| f.scaled(start.value(f.knob))).collect();
+    let (lower, upper): (Vec<f64>, Vec<f64>) = knobs.iter().map(Free::bounds).unzip();
+    let apply = |theta: &[f64]| -> Working {
+        let mut w = start.clone();
+        for (f, t) in knobs.iter().zip(theta) {
+            w.set(f.knob, f.unscaled(*t));
+        }
+        w
+    };
+    let residuals = |theta: &[f64]| -> Option<Vec<f64>> {
+        let w = apply(theta);
+        let effects = w.build()?;
+        let prediction = predict_part(part, &w.plant, &effects, signals, range.clone());
+        let r = loss.residuals(part, signals, &prediction, range.clone());
+        r.iter().all(|v| v.is_finite()).then_some(r)
+    };
+    let result = lm::minimize(
+        &theta0,
+        &lower,
+        &upper,
+        residuals,
+        LmOptions {
+            max_iterations: options.max_iterations,
+            ..LmOptions::default()
+        },
+    )
+    .ok_or_else(|| ModelError::Fit(format!("the {part:?} part does not simulate from its start")))?;
+    Ok(apply(&result.params))
+}
+
+fn median_abs(x: &[f64]) -> f64 {
+    let mut a: Vec<f64> = x.iter().map(|v| v.abs()).filter(|v| v.is_finite()).collect();
+    if a.is_empty() {
+        return 0.0;
+    }
+    a.sort_by(f64::total_cmp);
+    a[a.len() / 2]
+}
+
+/// The plain least-squares cost of one part on `range`, normalized per sample.
+fn part_cost(part: Part, w: &Working, signals: &Signals, range: Range<usize>) -> f64 {
+    let Some(effects) = w.build() else {
+        return f64::INFINITY;
+    };
+    let spreads = match part {
+        Part::Hydraulic => [spread(&signals.p_a[range.clone()]), spread(&signals.p_b[range.clone()])],
+        Part::Mechanical => [spread(&signals.theta[range.clone()]), 1.0],
+    };
+    let loss = Loss {
+        spreads,
+        threshold: f64::INFINITY,
+    };
+    let prediction = predict_part(part, &w.plant, &effects, signals, range.clone());
+    let r = loss.residuals(part, signals, &prediction, range);
+    let cost = lm::sum_of_squares(&r) / r.len().max(1) as f64;
+    if cost.is_finite() {
+        cost
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Starting values to try for an effect: its main parameter over the range
+/// it can plausibly take, the others at the catalog's defaults.
+fn starts(kind: EffectKind, signals: &Signals) -> Vec<Effect> {
+    let with = |pairs: &[(&str, f64)]| -> Option<Effect> {
+        let given: BTreeMap<String, f64> = pairs.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect();
+        Effect::from_params(kind, &given).ok()
+    };
+    let values: Vec<Vec<(&str, f64)>> = match kind {
+        EffectKind::Deadzone => [0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3]
+            .iter()
+            .map(|w| vec![("width", *w)])
+            .collect(),
+        EffectKind::Saturation => {
+            let peak = signals.u.iter().fold(0.0_f64, |m, u| m.max(u.abs()));
+            [0.3, 0.45, 0.6, 0.75, 0.9]
+                .iter()
+                .map(|f| vec![("limit", (f * peak).max(0.02))])
+                .collect()
+        }
+        EffectKind::TimeDelay => [0.002, 0.005, 0.01, 0.02, 0.035, 0.05, 0.08]
+            .iter()
+            .map(|d| vec![("delay_s", *d)])
+            .collect(),
+        EffectKind::AsymmetricGain => [0.4, 0.55, 0.7, 0.85, 1.2, 1.5, 2.0]
+            .iter()
+            .map(|r| vec![("ratio", *r)])
+            .collect(),
+        EffectKind::OrificeFlow => vec![vec![]],
+        EffectKind::CoulombFriction => [3.0, 10.0, 25.0, 50.0, 100.0, 200.0]
+            .iter()
+            .map(|c| vec![("coulomb", *c), ("breakaway", 1.5 * c)])
+            .collect(),
+        EffectKind::GravityLoad => [-300.0, -100.0, -30.0, 30.0, 100.0, 300.0]
+            .iter()
+            .map(|a| vec![("amplitude", *a)])
+            .collect(),
+        EffectKind::Backlash => [0.002, 0.005, 0.01, 0.02, 0.04, 0.08]
+            .iter()
+            .map(|w| vec![("width", *w)])
+            .collect(),
+        EffectKind::Quantization => {
+            let step = encoder_step(&signals.theta);
+            [0.98, 1.0, 1.02].iter().map(|f| vec![("step", f * step)]).collect()
+        }
+        EffectKind::LoadFlexibility => [1000.0, 2500.0, 5000.0, 10000.0, 25000.0]
+            .iter()
+            .map(|s| vec![("stiffness", *s), ("damping", 0.005 * s)])
+            .collect(),
+    };
+    values.iter().filter_map(|pairs| with(pairs)).collect()
+}
+
+/// The encoder's step as the data shows it: the smallest change of the
+/// angle between samples that is not noise (the 2nd percentile of the
+/// nonzero changes).
+pub(crate) fn encoder_step(theta: &[f64]) -> f64 {
+    let mut changes: Vec<f64> = theta
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 1e-12)
+        .collect();
+    if changes.is_empty() {
+        return 1e-3;
+    }
+    changes.sort_by(f64::total_cmp);
+    changes[changes.len() / 50]
+}
+
+/// Validation NRMSE per output: ‖y − ŷ‖ / ‖y − mean(y)‖ on `range`, for
+/// `p_a`, `p_b`, `theta`, and `pressures` (both chambers together).
+pub fn validation_nrmse(
+    model_plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+) -> BTreeMap<String, f64> {
+    let prediction = super::predict(model_plant, effects, signals, range.clone());
+    nrmse_by_output(signals, &prediction, range)
+}
+
+pub(crate) fn nrmse_by_output(
+    signals: &Signals,
+    prediction: &Prediction,
+    range: Range<usize>,
+) -> BTreeMap<String, f64> {
+    let sums = |y: &[f64], yhat: &[f64]| -> (f64, f64) {
+        let n = range.len().max(1) as f64;
+        let mean = y[range.clone()].iter().sum::<f64>() / n;
+        let error = range.clone().map(|k| (y[k] - yhat[k]).powi(2)).sum::<f64>();
+        let total = range.clone().map(|k| (y[k] - mean).powi(2)).sum::<f64>().max(1e-30);
+        (error, total)
+    };
+    let a = sums(&signals.p_a, &prediction.p_a);
+    let b = sums(&signals.p_b, &prediction.p_b);
+    let t = sums(&signals.theta, &prediction.theta);
+    BTreeMap::from([
+        ("p_a".to_owned(), (a.0 / a.1).sqrt()),
+        ("p_b".to_owned(), (b.0 / b.1).sqrt()),
+        ("pressures".to_owned(), ((a.0 + b.0) / (a.1 + b.1)).sqrt()),
+        ("theta".to_owned(), (t.0 / t.1).sqrt()),
+    ])
+}
+
+/// Fits the baseline (no effects) from the prior's parameters.
+pub fn fit_baseline(signals: &Signals, prior: &PlantParams, options: FitOptions) -> Result<Model, ModelError> {
+    let estimation = 0..signals.split(options.estimation_fraction);
+    let mut w = Working {
+        plant: *prior,
+        effects: EffectsConfig::default(),
+    };
+    if let Some((inertia, viscous)) = rigid_body_by_equation_error(signals, prior, estimation.clone()) {
+        w.plant.inertia = inertia;
+        w.plant.viscous_friction = viscous;
+    }
+    for part in [Part::Hydraulic, Part::Mechanical] {
+        w = fit_part(part, &w, &baseline_knobs(part), signals, estimation.clone(), options)?;
+    }
+    let mut model = Model::new(w.plant, Effects::none());
+    let effects = model.effects()?;
+    let validation = signals.split(options.estimation_fraction)..signals.len();
+    model.history.push(HistoryStep {
+        step: "baseline".to_owned(),
+        validation_nrmse: validation_nrmse(&model.plant, &effects, signals, validation),
+    });
+    Ok(model)
+}
+
+/// Adds `kind` to `model` and refits the part it acts on: the effect's
+/// parameters from the best of several starts, then all of that part's
+/// parameters together. The history gains a step.
+pub fn fit(signals: &Signals, model: &Model, kind: EffectKind, options: FitOptions) -> Result<Model, ModelError> {
+    let start = Working {
+        plant: model.plant,
+        effects: model.effects.clone(),
+    };
+    if start.has(kind) {
+        return Err(ModelError::AlreadyIn(kind.name()));
+    }
+    let part = Part::of(kind);
+    let estimation = 0..signals.split(options.estimation_fraction);
+    let mut knobs = baseline_knobs(part);
+    for present in EffectKind::ALL {
+        if Part::of(present) == part && (start.has(present) || present == kind) {
+            knobs.extend(effect_knobs(present));
+        }
+    }
+    // For the mechanical part, a few iterations from each start with all of
+    // the part's parameters free: inertia and viscous friction absorb much
+    // of a missing friction or load, and must give it back before a start
+    // can be judged.
+    let mut bases = vec![start.clone()];
+    if part == Part::Mechanical {
+        if let Some((inertia, viscous)) = rigid_body_by_equation_error(signals, &start.plant, estimation.clone()) {
+            let mut fresh = start.clone();
+            fresh.plant.inertia = inertia;
+            fresh.plant.viscous_friction = viscous;
+            bases.push(fresh);
+        }
+    }
+    // Starts are screened on the first third of the estimation segment.
+    let screening = estimation.start..estimation.start + estimation.len() / 3;
+    let mut best: Option<(f64, Working)> = None;
+    for (base, effect) in bases
+        .iter()
+        .flat_map(|b| starts(kind, signals).into_iter().map(move |e| (b, e)))
+    {
+        let mut candidate = base.clone();
+        candidate.insert(effect);
+        let screened = match part {
+            // The pressures' baseline absorbs little of a hydraulic effect:
+            // judging each start as it is suffices.
+            Part::Hydraulic => candidate,
+            Part::Mechanical => {
+                let quick = FitOptions {
+                    max_iterations: SCREENING_ITERATIONS,
+                    ..options
+                };
+                let Ok(screened) = fit_part(part, &candidate, &knobs, signals, screening.clone(), quick) else {
+                    continue;
+                };
+                screened
+            }
+        };
+        let cost = part_cost(part, &screened, signals, screening.clone());
+        if best.as_ref().is_none_or(|(c, _)| cost < *c) {
+            best = Some((cost, screened));
+        }
+    }
+    let (_, seeded) = best.ok_or_else(|| ModelError::Fit(format!("no valid start for `{kind}`")))?;
+    let fitted = fit_part(part, &seeded, &knobs, signals, estimation, options)?;
+    let mut out = Model {
+        plant: fitted.plant,
+        effects: fitted.effects,
+        history: model.history.clone(),
+    };
+    let effects = out.effects()?;
+    let validation = signals.split(options.estimation_fraction)..signals.len();
+    out.history.push(HistoryStep {
+        step: kind.name().to_owned(),
+        validation_nrmse: validation_nrmse(&out.plant, &effects, signals, validation),
+    });
+    Ok(out)
+}
+
+/// Half-width of the equation error's moving average, s: its first null is
+/// at 5 Hz, below a flexible load's mode.
+const LOW_PASS_HALF_WIDTH_S: f64 = 0.1;
+
+/// Inertia and viscous friction by equation error, J ω̇ + b ω = D (p_a − p_b),
+/// on the smoothed velocity and its smoothed derivative: a start for the
+/// mechanical part that depends on the data only, not on the prior's guess.
+/// `None` when the data does not give positive values.
+fn rigid_body_by_equation_error(signals: &Signals, plant: &PlantParams, range: Range<usize>) -> Option<(f64, f64)> {
+    // All three through the same low-pass: the equation holds for the
+    // filtered signals too, and the filter keeps out what a rigid body
+    // cannot explain (a flexible load's ringing, the encoder's steps).
+    let low_pass = |x: &[f64]| super::signals::moving_average(x, LOW_PASS_HALF_WIDTH_S, signals.dt);
+    let velocity = low_pass(&signals.velocity);
+    let acceleration = low_pass(&super::signals::smoothed_slope(&signals.velocity, signals.dt));
+    let torque: Vec<f64> = (0..signals.len()).map(|k| signals.torque(plant, k)).collect();
+    let torque = low_pass(&torque);
+    let (mut aa, mut av, mut vv, mut at, mut vt) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for k in range {
+        let (a, v, t) = (acceleration[k], velocity[k], torque[k]);
+        aa += a * a;
+        av += a * v;
+        vv += v * v;
+        at += a * t;
+        vt += v * t;
+    }
+    let det = aa * vv - av * av;
+    if det.abs() < 1e-30 {
+        return None;
+    }
+    let inertia = (vv * at - av * vt) / det;
+    let viscous = (aa * vt - av * at) / det;
+    (inertia > 0.0 && viscous > 0.0 && inertia.is_finite() && viscous.is_finite()).then_some((inertia, viscous))
+}

@@ -1,0 +1,471 @@
+//! The grey-box model of the rotator and its comparison with measurements.
+//!
+//! The model is the papers' structure (spool, linearized flow, chamber
+//! pressures, rigid body with viscous friction) plus any effects of the
+//! catalog, with the parameters in the plant's own units. It is split into
+//! two parts, each driven by the measured coupling signal, so that a
+//! residual points at one part:
+//!
+//! - **hydraulic**: valve command and measured motion → chamber pressures;
+//! - **mechanical**: measured torque D (p_a − p_b) → angle, and the encoder
+//!   (the `backlash` and `quantization` effects) → measured angle.
+//!
+//! The plant integrates (the angle is the integral of the velocity) and the
+//! data is closed-loop, so a free-run simulation would drift. Both parts are
+//! compared by **multiple shooting**: the record is cut into 0.5 s segments;
+//! each pressure segment starts from the measured pressures, and each angle
+//! segment from an initial angle and velocity estimated by least squares on
+//! that segment (MATLAB `compare`'s `'estimate'` initial condition, per
+//! segment). The spool runs through the whole record unbroken.
+
+mod compare;
+mod diagnose;
+mod fit;
+mod signals;
+
+pub use compare::{compare, Comparison, CorrelationTest, OutputScore, RegimeScore};
+pub use diagnose::{diagnose, Candidate, Diagnosis};
+pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions};
+pub use signals::{Signals, REQUIRED_COLUMNS};
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::path::Path;
+
+use hydractl_plant::effects::Effects;
+use hydractl_plant::{hydraulics, mechanics, EffectKind, EffectsConfig, PlantError, PlantParams};
+use serde::{Deserialize, Serialize};
+
+/// Length of one shooting segment, s.
+pub const SEGMENT_S: f64 = 0.5;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error(transparent)]
+    Data(#[from] crate::DataError),
+    #[error("{source_name}: {reason}")]
+    Signals { source_name: String, reason: String },
+    #[error("{path}: cannot read the model: {reason}")]
+    ReadModel { path: String, reason: String },
+    #[error("{path}: cannot write the model: {reason}")]
+    WriteModel { path: String, reason: String },
+    #[error("model: {0}")]
+    Plant(#[from] PlantError),
+    #[error("effect `{0}` is already in the model")]
+    AlreadyIn(&'static str),
+    #[error("the fit failed: {0}")]
+    Fit(String),
+}
+
+/// The two parts of the model, and the outputs they predict.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Part {
+    /// Command and motion → pressures.
+    Hydraulic,
+    /// Torque → angle, through the encoder.
+    Mechanical,
+}
+
+impl Part {
+    pub fn of(kind: EffectKind) -> Self {
+        match kind {
+            EffectKind::Deadzone
+            | EffectKind::Saturation
+            | EffectKind::TimeDelay
+            | EffectKind::AsymmetricGain
+            | EffectKind::OrificeFlow => Part::Hydraulic,
+            EffectKind::CoulombFriction
+            | EffectKind::GravityLoad
+            | EffectKind::Backlash
+            | EffectKind::Quantization
+            | EffectKind::LoadFlexibility => Part::Mechanical,
+        }
+    }
+
+    /// The output name the JSON and the report use for this part.
+    pub fn output(self) -> &'static str {
+        match self {
+            Part::Hydraulic => "pressures",
+            Part::Mechanical => "theta",
+        }
+    }
+}
+
+/// One step of a model's history: what was added and what it did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HistoryStep {
+    /// `baseline` or the effect's name.
+    pub step: String,
+    /// Validation NRMSE per output after this step.
+    pub validation_nrmse: BTreeMap<String, f64>,
+}
+
+/// A fitted model: plant parameters, effects, and how it got there.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Model {
+    pub plant: PlantParams,
+    #[serde(default)]
+    pub effects: EffectsConfig,
+    #[serde(default)]
+    pub history: Vec<HistoryStep>,
+}
+
+impl Model {
+    pub fn new(plant: PlantParams, effects: Effects) -> Self {
+        Self {
+            plant,
+            effects: EffectsConfig::from_effects(&effects),
+            history: Vec::new(),
+        }
+    }
+
+    pub fn effects(&self) -> Result<Effects, ModelError> {
+        Ok(self.effects.build()?)
+    }
+
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ModelError::ReadModel {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        let model: Model = toml::from_str(&text).map_err(|e| ModelError::ReadModel {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        model.plant.validate().map_err(|e| ModelError::ReadModel {
+            path: path.display().to_string(),
+            reason: format!("[plant]: {e}"),
+        })?;
+        model.effects.build().map_err(|e| ModelError::ReadModel {
+            path: path.display().to_string(),
+            reason: format!("[effects]: {e}"),
+        })?;
+        Ok(model)
+    }
+
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        let body = toml::to_string_pretty(self).map_err(|e| ModelError::WriteModel {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        let text = format!(
+            "# A grey-box model of the rotator, written by `hydractl model`.\n\
+             # [plant]: SI units, as config/sim.toml; [effects]: the catalog's names and keys.\n\n{body}"
+        );
+        std::fs::write(path, text).map_err(|e| ModelError::WriteModel {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })
+    }
+}
+
+/// The model's outputs over a range of samples (others hold NaN).
+#[derive(Debug, Clone)]
+pub struct Prediction {
+    /// Pa.
+    pub p_a: Vec<f64>,
+    pub p_b: Vec<f64>,
+    /// rad, as the encoder reports it.
+    pub theta: Vec<f64>,
+}
+
+impl Prediction {
+    pub fn new(len: usize) -> Self {
+        Self {
+            p_a: vec![f64::NAN; len],
+            p_b: vec![f64::NAN; len],
+            theta: vec![f64::NAN; len],
+        }
+    }
+}
+
+/// Predicts both parts over `range`.
+pub fn predict(plant: &PlantParams, effects: &Effects, signals: &Signals, range: Range<usize>) -> Prediction {
+    let mut out = Prediction::new(signals.len());
+    predict_hydraulic(plant, effects, signals, range.clone(), &mut out);
+    predict_mechanical(plant, effects, signals, range, &mut out);
+    out
+}
+
+/// The segments of `range`, each at most one shooting segment long.
+pub fn segments(signals: &Signals, range: Range<usize>) -> impl Iterator<Item = Range<usize>> {
+    let length = ((SEGMENT_S / signals.dt).round() as usize).max(2);
+    let end = range.end;
+    range.step_by(length).map(move |start| start..(start + length).min(end))
+}
+
+/// The valve input after the `time_delay` effect: the command `delay_s`
+/// earlier, interpolated between samples so that the delay is continuous.
+fn delayed_command(signals: &Signals, effects: &Effects, k: usize) -> f64 {
+    let Some(delay) = effects.time_delay else {
+        return signals.u[k];
+    };
+    let shift = delay.delay_s / signals.dt;
+    let whole = shift.floor();
+    let fraction = shift - whole;
+    let at = |back: f64| {
+        let index = k as f64 - back;
+        if index < 0.0 {
+            0.0
+        } else {
+            signals.u[index as usize]
+        }
+    };
+    (1.0 - fraction) * at(whole) + fraction * at(whole + 1.0)
+}
+
+/// Command and measured motion → pressures, segment by segment, each
+/// segment starting from the measured pressures; the spool runs unbroken
+/// from the start of the record.
+pub fn predict_hydraulic(
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+    out: &mut Prediction,
+) {
+    let h = signals.dt;
+    let mut spool = [0.0_f64; 2];
+    let mut pressures = [signals.p_a[0], signals.p_b[0]];
+    let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
+    let mut next_start = 0;
+    for k in 0..range.end {
+        if next_start < segment_starts.len() && k == segment_starts[next_start] {
+            pressures = [signals.p_a[k], signals.p_b[k]];
+            next_start += 1;
+        }
+        if k >= range.start {
+            out.p_a[k] = pressures[0];
+            out.p_b[k] = pressures[1];
+        }
+        if k + 1 >= range.end {
+            break;
+        }
+        // RK4 over one sample, the command held and the velocity linear.
+        let input = delayed_command(signals, effects, k);
+        let (v0, v1) = (signals.velocity[k], signals.velocity[k + 1]);
+        // Before the range only the spool matters.
+        let in_segment = k + 1 >= range.start;
+        let rates = |x: &[f64; 4], velocity: f64| -> [f64; 4] {
+            let (ds, dr) = hydraulics::spool_rates(plant, effects, x[0], x[1], input);
+            let (da, db) = if in_segment {
+                hydraulics::pressure_rates(plant, effects, x[0], x[2], x[3], velocity)
+            } else {
+                (0.0, 0.0)
+            };
+            [ds, dr, da, db]
+        };
+        let x = [spool[0], spool[1], pressures[0], pressures[1]];
+        let vm = 0.5 * (v0 + v1);
+        let k1 = rates(&x, v0);
+        let k2 = rates(&add(&x, &k1, 0.5 * h), vm);
+        let k3 = rates(&add(&x, &k2, 0.5 * h), vm);
+        let k4 = rates(&add(&x, &k3, h), v1);
+        let mut next = x;
+        for i in 0..4 {
+            next[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+        }
+        let (mut s, mut r) = (next[0], next[1]);
+        hydraulics::limit_spool(effects, &mut s, &mut r);
+        spool = [s, r];
+        pressures = [
+            hydraulics::bound_pressure(plant, next[2]),
+            hydraulics::bound_pressure(plant, next[3]),
+        ];
+    }
+}
+
+fn add<const N: usize>(x: &[f64; N], k: &[f64; N], h: f64) -> [f64; N] {
+    let mut out = *x;
+    for i in 0..N {
+        out[i] += h * k[i];
+    }
+    out
+}
+
+/// Measured torque → angle → encoder, segment by segment.
+pub fn predict_mechanical(
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+    out: &mut Prediction,
+) {
+    let mut shaft = Vec::new();
+    let mut best = Vec::new();
+    for segment in segments(signals, range) {
+        let start = segment.start;
+        let mut initial_angle = signals.theta_smooth[start];
+        let mut initial_velocity = signals.velocity[start];
+        if let Some(friction) = effects.coulomb_friction {
+            if initial_velocity.abs() < friction.stribeck_velocity {
+                initial_velocity = 0.0;
+            }
+        }
+        // From the smoothed measurement, then from the initial state that
+        // least squares says fits the segment better; the better one stays
+        // (with backlash or friction the correction's linear view can miss).
+        let mut best_error = f64::INFINITY;
+        best.clear();
+        // Without a mechanical effect the correction is exact: two passes do.
+        let passes = if nonlinear_mechanics(effects) { 3 } else { 2 };
+        for pass in 0..passes {
+            simulate_segment(
+                plant,
+                effects,
+                signals,
+                segment.clone(),
+                initial_angle,
+                initial_velocity,
+                &mut shaft,
+            );
+            let offset = match effects.quantization {
+                Some(q) => best_quantized_offset(q, &signals.theta[segment.clone()], &shaft),
+                None => 0.0,
+            };
+            let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, offset);
+            if error < best_error {
+                best_error = error;
+                best.clear();
+                best.extend(shaft.iter().map(|s| s + offset));
+            }
+            if pass + 1 == passes {
+                break;
+            }
+            let (d_angle, d_velocity) = initial_state_correction(plant, signals, segment.clone(), &shaft);
+            initial_angle += d_angle;
+            initial_velocity += d_velocity;
+        }
+        // A diverged simulation leaves NaN, which the fit refuses.
+        best.resize(segment.len(), f64::NAN);
+        for (i, k) in segment.clone().enumerate() {
+            out.theta[k] = encoder_reading(effects, best[i]);
+        }
+    }
+}
+
+fn nonlinear_mechanics(effects: &Effects) -> bool {
+    effects.coulomb_friction.is_some()
+        || effects.gravity_load.is_some()
+        || effects.backlash.is_some()
+        || effects.quantization.is_some()
+        || effects.load_flexibility.is_some()
+}
+
+fn encoder_reading(effects: &Effects, shaft: f64) -> f64 {
+    match effects.quantization {
+        Some(q) => q.quantize(shaft),
+        None => shaft,
+    }
+}
+
+fn segment_error(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64) -> f64 {
+    measured
+        .iter()
+        .zip(shaft)
+        .map(|(m, s)| (m - encoder_reading(effects, s + offset)).powi(2))
+        .sum()
+}
+
+/// With a coarse encoder, least squares on the staircase leaves the initial
+/// angle uncertain by up to half a step; this picks, within half a step, the
+/// shift of the segment that reproduces the measured staircase best.
+fn best_quantized_offset(quantization: hydractl_plant::effects::Quantization, measured: &[f64], shaft: &[f64]) -> f64 {
+    const TRIES: usize = 21;
+    let mut best = (f64::INFINITY, 0.0);
+    for i in 0..TRIES {
+        let offset = quantization.step * (i as f64 / (TRIES - 1) as f64 - 0.5);
+        let error: f64 = measured
+            .iter()
+            .zip(shaft)
+            .map(|(m, s)| (m - quantization.quantize(s + offset)).powi(2))
+            .sum();
+        if error < best.0 {
+            best = (error, offset);
+        }
+    }
+    best.1
+}
+
+/// The least-squares change of a segment's initial angle and velocity that
+/// best fits the measured angle, with the rigid body's sensitivities: 1 for
+/// the angle, (J/b)(1 − e^(−b t / J)) for the velocity.
+fn initial_state_correction(
+    plant: &PlantParams,
+    signals: &Signals,
+    segment: Range<usize>,
+    shaft: &[f64],
+) -> (f64, f64) {
+    let decay = plant.viscous_friction / plant.inertia;
+    let (mut s11, mut s12, mut s22, mut r1, mut r2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (i, k) in segment.enumerate() {
+        let t = i as f64 * signals.dt;
+        let g = if decay * t > 1e-9 {
+            (1.0 - (-decay * t).exp()) / decay
+        } else {
+            t
+        };
+        let e = signals.theta[k] - shaft[i];
+        s11 += 1.0;
+        s12 += g;
+        s22 += g * g;
+        r1 += e;
+        r2 += g * e;
+    }
+    let det = s11 * s22 - s12 * s12;
+    if det.abs() < 1e-12 {
+        return (if s11 > 0.0 { r1 / s11 } else { 0.0 }, 0.0);
+    }
+    ((s22 * r1 - s12 * r2) / det, (s11 * r2 - s12 * r1) / det)
+}
+
+/// One segment of the mechanical part from a given initial state; writes
+/// the encoder shaft's angle (before quantization) into `shaft`.
+fn simulate_segment(
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    segment: Range<usize>,
+    initial_angle: f64,
+    initial_velocity: f64,
+    shaft: &mut Vec<f64>,
+) {
+    shaft.clear();
+    let h = signals.dt;
+    // The encoder lags the actuator by half the play while moving.
+    let lag = match effects.backlash {
+        Some(b) if initial_velocity != 0.0 => 0.5 * b.width * initial_velocity.signum(),
+        _ => 0.0,
+    };
+    let angle = initial_angle + lag;
+    let mut motion: mechanics::Motion = [angle, initial_velocity, angle, initial_velocity];
+    let mut follower = initial_angle;
+    let mut stuck = effects.coulomb_friction.is_some() && initial_velocity == 0.0;
+    for k in segment.clone() {
+        follower = match effects.backlash {
+            Some(b) => b.follow(motion[mechanics::ANGLE], follower),
+            None => motion[mechanics::ANGLE],
+        };
+        shaft.push(follower);
+        if k + 1 >= segment.end {
+            break;
+        }
+        let (t0, t1) = (signals.torque(plant, k), signals.torque(plant, k + 1));
+        let (direction, now_stuck) = mechanics::friction_direction(plant, effects, &motion, t0, stuck);
+        stuck = now_stuck;
+        let tm = 0.5 * (t0 + t1);
+        let rates = |m: &mechanics::Motion, torque: f64| mechanics::motion_rates(plant, effects, m, torque, direction);
+        let k1 = rates(&motion, t0);
+        let k2 = rates(&add(&motion, &k1, 0.5 * h), tm);
+        let k3 = rates(&add(&motion, &k2, 0.5 * h), tm);
+        let k4 = rates(&add(&motion, &k3, h), t1);
+        let mut next = motion;
+        for i in 0..4 {
+            next[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+        }
+        stuck = mechanics::settle_friction(plant, effects, &motion, &mut next, t1, stuck, direction);
+        motion = next;
+    }
+}

@@ -1,0 +1,140 @@
+//! Levenberg–Marquardt least squares with a finite-difference Jacobian and
+//! box bounds: the one optimizer behind the grey-box fits.
+
+use nalgebra::{DMatrix, DVector};
+
+/// Where to stop and how to differentiate.
+#[derive(Debug, Clone, Copy)]
+pub struct LmOptions {
+    pub max_iterations: usize,
+    /// Forward-difference step, in the parameters' own (scaled) units.
+    pub difference_step: f64,
+    /// Stop when an iteration lowers the cost by less than this fraction.
+    pub tolerance: f64,
+}
+
+impl Default for LmOptions {
+    fn default() -> Self {
+        Self {
+            max_iterations: 30,
+            difference_step: 1e-4,
+            tolerance: 1e-6,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct LmResult {
+    pub params: Vec<f64>,
+    /// Sum of squared residuals at `params`.
+    pub cost: f64,
+    pub iterations: usize,
+}
+
+pub fn sum_of_squares(r: &[f64]) -> f64 {
+    r.iter().map(|v| v * v).sum()
+}
+
+/// Minimizes ‖r(θ)‖² over lower ≤ θ ≤ upper, from `initial`. `residuals`
+/// returns `None` where the model is not defined (an invalid parameter);
+/// such steps are refused. Returns `None` only if `initial` is not defined.
+pub fn minimize(
+    initial: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    residuals: impl Fn(&[f64]) -> Option<Vec<f64>>,
+    options: LmOptions,
+) -> Option<LmResult> {
+    let p = initial.len();
+    let clamp = |theta: &mut [f64]| {
+        for i in 0..p {
+            theta[i] = theta[i].clamp(lower[i], upper[i]);
+        }
+    };
+    let mut theta = initial.to_vec();
+    clamp(&mut theta);
+    let mut current = residuals(&theta)?;
+    let mut cost = sum_of_squares(&current);
+    let mut lambda = 1e-2;
+    let mut iterations = 0;
+    while iterations < options.max_iterations && p > 0 {
+        iterations += 1;
+        let mut jacobian = DMatrix::zeros(current.len(), p);
+        for j in 0..p {
+            let mut shifted = theta.clone();
+            // Step inward at an upper bound, so the difference stays feasible.
+            let h = if theta[j] + options.difference_step > upper[j] {
+                -options.difference_step
+            } else {
+                options.difference_step
+            };
+            shifted[j] += h;
+            let Some(r) = residuals(&shifted) else {
+                continue;
+            };
+            if r.len() != current.len() {
+                continue;
+            }
+            for (i, (ri, ci)) in r.iter().zip(&current).enumerate() {
+                jacobian[(i, j)] = (ri - ci) / h;
+            }
+        }
+        let r = DVector::from_column_slice(&current);
+        let jt = jacobian.transpose();
+        let jtj = &jt * &jacobian;
+        let gradient = &jt * &r;
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut damped = jtj.clone();
+            for i in 0..p {
+                damped[(i, i)] += lambda * jtj[(i, i)].max(1e-9);
+            }
+            let Some(step) = damped.lu().solve(&gradient) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut candidate: Vec<f64> = theta.iter().zip(step.iter()).map(|(t, s)| t - s).collect();
+            clamp(&mut candidate);
+            if let Some(r_new) = residuals(&candidate) {
+                let new_cost = sum_of_squares(&r_new);
+                if new_cost.is_finite() && new_cost < cost {
+                    let gain = cost - new_cost;
+                    theta = candidate;
+                    current = r_new;
+                    let converged = gain < options.tolerance * cost;
+                    cost = new_cost;
+                    lambda = (lambda / 5.0).max(1e-9);
+                    improved = !converged;
+                    break;
+                }
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Some(LmResult {
+        params: theta,
+        cost,
+        iterations,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fits_an_exponential_within_bounds() {
+        let t: Vec<f64> = (0..50).map(|i| i as f64 * 0.1).collect();
+        let y: Vec<f64> = t.iter().map(|t| 3.0 * (-0.7 * t).exp()).collect();
+        let residuals = |p: &[f64]| Some(t.iter().zip(&y).map(|(t, y)| p[0] * (-p[1] * t).exp() - y).collect());
+        let fit = minimize(&[1.0, 0.1], &[0.0, 0.0], &[10.0, 5.0], residuals, LmOptions::default()).expect("defined");
+        assert!((fit.params[0] - 3.0).abs() < 1e-4, "{:?}", fit.params);
+        assert!((fit.params[1] - 0.7).abs() < 1e-4, "{:?}", fit.params);
+        let bounded =
+            minimize(&[1.0, 0.1], &[0.0, 0.0], &[2.0, 5.0], residuals, LmOptions::default()).expect("defined");
+        assert!(bounded.params[0] <= 2.0);
+    }
+}

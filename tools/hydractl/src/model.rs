@@ -1,0 +1,337 @@
+//! `hydractl model`: compare the grey-box model with measurements, see where
+//! it fails, find the missing physical effect, add it, and watch the error fall.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use hydractl_ident::greybox::{self, FitOptions, Model, Signals};
+use hydractl_ident::Dataset;
+use hydractl_plant::EffectKind;
+
+use crate::emit;
+
+#[derive(clap::Subcommand)]
+pub enum ModelCommand {
+    /// Fit the baseline model (and any listed effects) to measured data.
+    Fit(FitArgs),
+    /// Compare a model with measured data: fit per output, the residual by
+    /// sub-model and by regime, and the residual tests.
+    Compare(CompareArgs),
+    /// Try every effect of the catalog and rank them by the validation error they remove.
+    Diagnose(DiagnoseArgs),
+    /// Add one effect to a model, refit, and print the error before and after.
+    Add(AddArgs),
+    /// Write a self-contained HTML page with the plots that show where the model fails.
+    Report(ReportArgs),
+}
+
+#[derive(clap::Args)]
+pub struct DataArgs {
+    /// CSV with a header row and at least `t,u,p_a,p_b,theta` (s, command, bar, bar, rad).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Share of the data, from its start, used to estimate; the rest validates.
+    #[arg(long, default_value_t = 0.7)]
+    pub estimation_fraction: f64,
+}
+
+#[derive(clap::Args)]
+pub struct FitArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// Effects of the catalog to add after the baseline, in order: NAME,NAME.
+    #[arg(long, value_delimiter = ',')]
+    effects: Vec<String>,
+    /// The prior (data sheet) parameters: a config with a [plant] table
+    /// [default: the built-in config/sim.toml].
+    #[arg(long)]
+    prior: Option<PathBuf>,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(clap::Args)]
+pub struct CompareArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    #[arg(long)]
+    model: PathBuf,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+pub struct DiagnoseArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// The model to improve [default: a baseline fitted here].
+    #[arg(long)]
+    model: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+pub struct AddArgs {
+    /// The effect's catalog name (see `hydractl effects`).
+    effect: String,
+    #[command(flatten)]
+    data: DataArgs,
+    #[arg(long)]
+    model: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(clap::Args)]
+pub struct ReportArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    #[arg(long)]
+    model: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn run(command: ModelCommand) -> Result<()> {
+    match command {
+        ModelCommand::Fit(args) => fit(args),
+        ModelCommand::Compare(args) => compare(args),
+        ModelCommand::Diagnose(args) => diagnose(args),
+        ModelCommand::Add(args) => add(args),
+        ModelCommand::Report(args) => crate::report::write(
+            &load_signals(&args.data.data)?,
+            &load_model(&args.model)?,
+            options(&args.data)?,
+            &args.out,
+        ),
+    }
+}
+
+pub fn load_signals(path: &Path) -> Result<Signals> {
+    let data = Dataset::from_csv(path, &greybox::REQUIRED_COLUMNS)?;
+    Ok(Signals::from_dataset(&data)?)
+}
+
+fn load_model(path: &Path) -> Result<Model> {
+    Ok(Model::load(path)?)
+}
+
+fn options(data: &DataArgs) -> Result<FitOptions> {
+    if !(data.estimation_fraction > 0.1 && data.estimation_fraction < 0.95) {
+        bail!(
+            "--estimation-fraction {}: must be within (0.1, 0.95)",
+            data.estimation_fraction
+        );
+    }
+    Ok(FitOptions {
+        estimation_fraction: data.estimation_fraction,
+        ..FitOptions::default()
+    })
+}
+
+fn parse_kind(name: &str) -> Result<EffectKind> {
+    Ok(EffectKind::from_name(name.trim())?)
+}
+
+fn errors_line(model: &Model) -> String {
+    match model.history.last() {
+        Some(step) => format!(
+            "validation NRMSE: p_a {:.4}, p_b {:.4}, theta {:.4}",
+            step.validation_nrmse.get("p_a").copied().unwrap_or(f64::NAN),
+            step.validation_nrmse.get("p_b").copied().unwrap_or(f64::NAN),
+            step.validation_nrmse.get("theta").copied().unwrap_or(f64::NAN)
+        ),
+        None => String::new(),
+    }
+}
+
+fn fit(args: FitArgs) -> Result<()> {
+    let kinds = args.effects.iter().map(|n| parse_kind(n)).collect::<Result<Vec<_>>>()?;
+    let options = options(&args.data)?;
+    let prior = match &args.prior {
+        Some(path) => hydractl_sim::Config::load(path)?.plant,
+        None => hydractl_sim::Config::default_sim()?.plant,
+    };
+    let signals = load_signals(&args.data.data)?;
+    let mut model = greybox::fit_baseline(&signals, &prior, options)
+        .with_context(|| format!("fitting the baseline to {}", args.data.data.display()))?;
+    let mut text = format!("baseline: {}\n", errors_line(&model));
+    for kind in kinds {
+        model = greybox::fit(&signals, &model, kind, options)
+            .with_context(|| format!("adding `{kind}` on {}", args.data.data.display()))?;
+        text += &format!("+ {kind}: {}\n", errors_line(&model));
+    }
+    model.save(&args.out)?;
+    text += &format!("model written to {}\n", args.out.display());
+    emit(&text)
+}
+
+fn compare(args: CompareArgs) -> Result<()> {
+    let signals = load_signals(&args.data.data)?;
+    let model = load_model(&args.model)?;
+    let comparison = greybox::compare(
+        &model.plant,
+        &model.effects()?,
+        &signals,
+        options(&args.data)?.estimation_fraction,
+    );
+    if args.json {
+        return emit(&(serde_json::to_string_pretty(&comparison)? + "\n"));
+    }
+    let mut text = format!(
+        "validation {:.1}–{:.1} s ({})\n\n{:<8} {:>8} {:>8}\n",
+        comparison.validation_start_s, comparison.validation_end_s, comparison.method, "output", "fit %", "NRMSE"
+    );
+    for o in &comparison.outputs {
+        text += &format!("{:<8} {:>8.2} {:>8.4}\n", o.output, o.fit_percent, o.nrmse);
+    }
+    text += "\nby sub-model (NRMSE):\n";
+    for (name, value) in &comparison.submodels {
+        text += &format!("  {name:<24} {value:.4}\n");
+    }
+    text += "\nby regime (RMS residual / the output's spread):\n";
+    text += &format!(
+        "  {:<20} {:>7} {:>8} {:>8} {:>8}\n",
+        "regime", "samples", "p_a", "p_b", "theta"
+    );
+    for r in &comparison.regimes {
+        text += &format!(
+            "  {:<20} {:>7} {:>8.4} {:>8.4} {:>8.4}\n",
+            r.regime, r.samples, r.nrmse["p_a"], r.nrmse["p_b"], r.nrmse["theta"]
+        );
+    }
+    text += "\nresidual tests (99% bounds):\n";
+    for t in &comparison.residual_tests {
+        text += &format!(
+            "  {:<6} {:<20} max |r| {:.3} at lag {:>3} (bound {:.3}): {}\n",
+            t.output,
+            t.test,
+            t.max_abs,
+            t.lag_of_max,
+            t.bound,
+            if t.within_bounds { "passes" } else { "fails" }
+        );
+    }
+    emit(&text)
+}
+
+fn diagnose(args: DiagnoseArgs) -> Result<()> {
+    let signals = load_signals(&args.data.data)?;
+    let model = args.model.as_deref().map(load_model).transpose()?;
+    let diagnosis = greybox::diagnose(&signals, model.as_ref(), options(&args.data)?)
+        .with_context(|| format!("diagnosing {}", args.data.data.display()))?;
+    if args.json {
+        return emit(&(serde_json::to_string_pretty(&diagnosis)? + "\n"));
+    }
+    emit(&(diagnosis_table(&diagnosis) + "\n" + &diagnosis.verdict + "\n"))
+}
+
+pub fn diagnosis_table(diagnosis: &greybox::Diagnosis) -> String {
+    let mut text = format!(
+        "baseline: validation NRMSE {:.4}\n\n{:<18} {:<10} {:>8} {:>8} {:>6}  {}\n",
+        diagnosis.baseline.validation_nrmse, "effect", "output", "before", "after", "sig.", "evidence"
+    );
+    for c in &diagnosis.candidates {
+        text += &format!(
+            "{:<18} {:<10} {:>8.4} {:>8.4} {:>6}  {}\n",
+            c.effect,
+            c.output,
+            c.validation_nrmse_before,
+            c.validation_nrmse_after,
+            if c.significant { "yes" } else { "no" },
+            c.evidence
+        );
+    }
+    text
+}
+
+fn add(args: AddArgs) -> Result<()> {
+    let kind = parse_kind(&args.effect)?;
+    let signals = load_signals(&args.data.data)?;
+    let model = load_model(&args.model)?;
+    let options = options(&args.data)?;
+    // The error before is measured on this data, whatever data the model came from.
+    let before = greybox::validation_nrmse(
+        &model.plant,
+        &model.effects()?,
+        &signals,
+        signals.split(options.estimation_fraction)..signals.len(),
+    );
+    let refit = greybox::fit(&signals, &model, kind, options)
+        .with_context(|| format!("adding `{kind}` on {}", args.data.data.display()))?;
+    let after = refit
+        .history
+        .last()
+        .map(|s| s.validation_nrmse.clone())
+        .unwrap_or_default();
+    refit.save(&args.out)?;
+    let mut text = format!("added `{kind}`");
+    if let Some(params) = refit.effects.0.get(kind.name()) {
+        let list: Vec<String> = params.iter().map(|(k, v)| format!("{k} = {v:.6}")).collect();
+        text += &format!(" ({})", list.join(", "));
+    }
+    text += "\nvalidation NRMSE   before    after\n";
+    for output in ["p_a", "p_b", "theta"] {
+        text += &format!(
+            "  {output:<14} {:>8.4} {:>8.4}\n",
+            before.get(output).copied().unwrap_or(f64::NAN),
+            after.get(output).copied().unwrap_or(f64::NAN)
+        );
+    }
+    text += &format!("model written to {}\n", args.out.display());
+    emit(&text)
+}
+
+/// A simulated run as the model tools see a CSV of it.
+pub fn signals_from_records(records: &[hydractl_sim::Record]) -> Result<Signals> {
+    let column = |f: fn(&hydractl_sim::Record) -> f64| records.iter().map(f).collect::<Vec<f64>>();
+    let data = Dataset::from_columns(
+        "simulated",
+        vec![
+            ("t", column(|r| r.t)),
+            ("u", column(|r| r.u)),
+            ("p_a", column(|r| r.p_a)),
+            ("p_b", column(|r| r.p_b)),
+            ("theta", column(|r| r.theta)),
+        ],
+    );
+    Ok(Signals::from_dataset(&data)?)
+}
+
+/// `hydractl bench diagnose`: wall time of `diagnose` over the whole catalog
+/// on closed-loop data with a hidden dead-zone, for several data lengths.
+pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
+    let config = hydractl_sim::Config::default_sim()?;
+    let hidden = hydractl_plant::Effect::parse("deadzone")?;
+    let mut text = format!(
+        "bench diagnose: the whole catalog ({} effects), 1 kHz closed-loop data with a hidden dead-zone, one thread, median of {}\n",
+        EffectKind::ALL.len(),
+        repeat.max(1)
+    );
+    for &duration in durations {
+        let run = hydractl_sim::simulate(&config, &[hidden], duration)?;
+        let signals = signals_from_records(&run.records)?;
+        let mut times = Vec::new();
+        let mut first = String::new();
+        for _ in 0..repeat.max(1) {
+            let start = std::time::Instant::now();
+            let diagnosis = greybox::diagnose(&signals, None, FitOptions::default())?;
+            times.push(start.elapsed().as_secs_f64());
+            first = diagnosis
+                .candidates
+                .first()
+                .map(|c| c.effect.clone())
+                .unwrap_or_default();
+        }
+        times.sort_by(f64::total_cmp);
+        let median = times[times.len() / 2];
+        text += &format!(
+            "  {duration:>5.0} s of data: {median:.2} s (min {:.2}, max {:.2}), {:.0} ms per data second; ranked first: {first}\n",
+            times[0],
+            times[times.len() - 1],
+            1e3 * median / duration
+        );
+    }
+    emit(&text)
+}

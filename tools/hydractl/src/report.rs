@@ -1,0 +1,361 @@
+//! `hydractl model report`: one self-contained HTML page whose plots show
+//! where the model fails and which effect is missing.
+
+use std::fmt::Write as _;
+use std::ops::Range;
+use std::path::Path;
+
+use anyhow::{anyhow, Context, Result};
+use hydractl_ident::greybox::{self, FitOptions, Model, Signals};
+use plotters::prelude::*;
+
+/// Points per plotted series: enough to see every feature of a 1 kHz record.
+const MAX_POINTS: usize = 2500;
+const WIDTH: u32 = 900;
+const HEIGHT: u32 = 260;
+
+struct Series {
+    label: String,
+    points: Vec<(f64, f64)>,
+    color: RGBColor,
+}
+
+fn series(label: &str, points: Vec<(f64, f64)>, color: RGBColor) -> Series {
+    Series {
+        label: label.to_owned(),
+        points,
+        color,
+    }
+}
+
+fn stride(range: &Range<usize>) -> usize {
+    (range.len() / MAX_POINTS).max(1)
+}
+
+fn extent(all: &[&Series], extra: &[f64]) -> (Range<f64>, Range<f64>) {
+    let mut x = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut y = (f64::INFINITY, f64::NEG_INFINITY);
+    for s in all {
+        for (a, b) in s.points.iter().filter(|(a, b)| a.is_finite() && b.is_finite()) {
+            x = (x.0.min(*a), x.1.max(*a));
+            y = (y.0.min(*b), y.1.max(*b));
+        }
+    }
+    for v in extra {
+        y = (y.0.min(*v), y.1.max(*v));
+    }
+    if !x.0.is_finite() {
+        x = (0.0, 1.0);
+        y = (0.0, 1.0);
+    }
+    let pad = ((y.1 - y.0) * 0.05).max(1e-12);
+    let xpad = if x.1 > x.0 { 0.0 } else { 1.0 };
+    (x.0 - xpad..x.1 + xpad, y.0 - pad..y.1 + pad)
+}
+
+/// A chart as an SVG string: lines, or dots when `dots`, and dashed
+/// horizontal lines at ± `band` when given (a test's confidence bounds).
+fn chart(title: &str, x_label: &str, y_label: &str, all: &[Series], dots: bool, band: Option<f64>) -> Result<String> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT)).into_drawing_area();
+        let draw = |e: String| anyhow!("drawing `{title}`: {e}");
+        root.fill(&WHITE).map_err(|e| draw(e.to_string()))?;
+        let refs: Vec<&Series> = all.iter().collect();
+        let extra: Vec<f64> = band.map(|b| vec![-b, b]).unwrap_or_default();
+        let (xr, yr) = extent(&refs, &extra);
+        let mut c = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 15))
+            .margin(8)
+            .x_label_area_size(32)
+            .y_label_area_size(60)
+            .build_cartesian_2d(xr.clone(), yr)
+            .map_err(|e| draw(e.to_string()))?;
+        c.configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .light_line_style(WHITE.mix(0.0))
+            .draw()
+            .map_err(|e| draw(e.to_string()))?;
+        for s in all {
+            let color = s.color;
+            let points = s.points.iter().copied().filter(|(a, b)| a.is_finite() && b.is_finite());
+            if dots {
+                c.draw_series(points.map(|p| Circle::new(p, 1, color.mix(0.5).filled())))
+                    .map_err(|e| draw(e.to_string()))?
+                    .label(s.label.clone())
+                    .legend(move |(x, y)| Circle::new((x + 8, y), 3, color.filled()));
+            } else {
+                c.draw_series(LineSeries::new(points, color.stroke_width(1)))
+                    .map_err(|e| draw(e.to_string()))?
+                    .label(s.label.clone())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
+            }
+        }
+        if let Some(b) = band {
+            for level in [-b, b] {
+                c.draw_series(DashedLineSeries::new(
+                    vec![(xr.start, level), (xr.end, level)],
+                    5,
+                    3,
+                    RED.stroke_width(1),
+                ))
+                .map_err(|e| draw(e.to_string()))?;
+            }
+        }
+        c.configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK.mix(0.3))
+            .draw()
+            .map_err(|e| draw(e.to_string()))?;
+        root.present().map_err(|e| draw(e.to_string()))?;
+    }
+    Ok(svg)
+}
+
+const MEASURED: RGBColor = RGBColor(40, 40, 40);
+const MODEL: RGBColor = RGBColor(220, 90, 20);
+const SECOND: RGBColor = RGBColor(30, 110, 200);
+
+pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) -> Result<()> {
+    let effects = model.effects()?;
+    let comparison = greybox::compare(&model.plant, &effects, signals, options.estimation_fraction);
+    let diagnosis = greybox::diagnose(signals, Some(model), options)?;
+    let p = &comparison.prediction;
+    let v = comparison.validation.clone();
+    let step = stride(&v);
+    let at = |y: &[f64], scale: f64| -> Vec<(f64, f64)> {
+        v.clone().step_by(step).map(|k| (signals.t[k], y[k] * scale)).collect()
+    };
+    let residual = |y: &[f64], yhat: &[f64], scale: f64| -> Vec<f64> {
+        (0..signals.len()).map(|k| (y[k] - yhat[k]) * scale).collect()
+    };
+    let bar = 1e-5;
+    let r_a = residual(&signals.p_a, &p.p_a, bar);
+    let r_b = residual(&signals.p_b, &p.p_b, bar);
+    let r_theta = residual(&signals.theta, &p.theta, 1.0);
+    let against = |x: &[f64], r: &[f64]| -> Vec<(f64, f64)> { v.clone().step_by(step).map(|k| (x[k], r[k])).collect() };
+
+    let mut figures: Vec<(String, String)> = Vec::new();
+    let mut add = |caption: &str, svg: Result<String>| -> Result<()> {
+        figures.push((caption.to_owned(), svg?));
+        Ok(())
+    };
+    add(
+        "Chamber pressure A, measured and model (validation segment).",
+        chart(
+            "p_a: measured against model",
+            "t [s]",
+            "bar",
+            &[
+                series("measured", at(&signals.p_a, bar), MEASURED),
+                series("model", at(&p.p_a, bar), MODEL),
+            ],
+            false,
+            None,
+        ),
+    )?;
+    add(
+        "Chamber pressure B.",
+        chart(
+            "p_b: measured against model",
+            "t [s]",
+            "bar",
+            &[
+                series("measured", at(&signals.p_b, bar), MEASURED),
+                series("model", at(&p.p_b, bar), MODEL),
+            ],
+            false,
+            None,
+        ),
+    )?;
+    add(
+        "Angle, as the encoder reports it.",
+        chart(
+            "theta: measured against model",
+            "t [s]",
+            "rad",
+            &[
+                series("measured", at(&signals.theta, 1.0), MEASURED),
+                series("model", at(&p.theta, 1.0), MODEL),
+            ],
+            false,
+            None,
+        ),
+    )?;
+    add(
+        "Residuals over time: structure here is what the model misses.",
+        chart(
+            "pressure residuals",
+            "t [s]",
+            "bar",
+            &[
+                series("p_a", at(&r_a, 1.0), MODEL),
+                series("p_b", at(&r_b, 1.0), SECOND),
+            ],
+            false,
+            None,
+        ),
+    )?;
+    add(
+        "",
+        chart(
+            "angle residual",
+            "t [s]",
+            "rad",
+            &[series("theta", at(&r_theta, 1.0), MODEL)],
+            false,
+            None,
+        ),
+    )?;
+    add(
+        "Pressure residual against the command: a dead-zone shows as a band near u = 0, saturation at the ends, asymmetric gain as a tilt on one side only.",
+        chart(
+            "p_a residual vs command",
+            "u",
+            "bar",
+            &[series("p_a", against(&signals.u, &r_a), MODEL)],
+            true,
+            None,
+        ),
+    )?;
+    add(
+        "Angle residual against velocity: friction shows as a step at zero velocity, backlash as a jump between directions.",
+        chart(
+            "theta residual vs velocity",
+            "velocity [rad/s]",
+            "rad",
+            &[series("theta", against(&signals.velocity, &r_theta), MODEL)],
+            true,
+            None,
+        ),
+    )?;
+    add(
+        "Angle residual against angle: a gravity load shows as a sine, a coarse encoder as a sawtooth.",
+        chart(
+            "theta residual vs angle",
+            "theta [rad]",
+            "rad",
+            &[series("theta", against(&signals.theta, &r_theta), MODEL)],
+            true,
+            None,
+        ),
+    )?;
+    for t in &comparison.residual_tests {
+        let points: Vec<(f64, f64)> = t
+            .values
+            .iter()
+            .enumerate()
+            .map(|(i, r)| ((t.first_lag + i as i64) as f64, *r))
+            .collect();
+        let caption = format!(
+            "{} of the {} residual: max |r| {:.3} at lag {} against the 99% bound {:.3} ({}).",
+            t.test.replace('_', " "),
+            t.output,
+            t.max_abs,
+            t.lag_of_max,
+            t.bound,
+            if t.within_bounds { "passes" } else { "fails" }
+        );
+        add(
+            &caption,
+            chart(
+                &format!("{} {}", t.output, t.test.replace('_', " ")),
+                "lag [samples]",
+                "r",
+                &[series(&t.output, points, MODEL)],
+                true,
+                Some(t.bound),
+            ),
+        )?;
+    }
+    if model.history.len() > 1 {
+        let steps = |output: &str| -> Vec<(f64, f64)> {
+            model
+                .history
+                .iter()
+                .enumerate()
+                .map(|(i, s)| (i as f64, s.validation_nrmse.get(output).copied().unwrap_or(f64::NAN)))
+                .collect()
+        };
+        let names: Vec<String> = model.history.iter().map(|s| s.step.clone()).collect();
+        add(
+            &format!("The error falling, step by step: {}.", names.join(" → ")),
+            chart(
+                "validation NRMSE per step",
+                "step",
+                "NRMSE",
+                &[
+                    series("pressures", steps("pressures"), SECOND),
+                    series("theta", steps("theta"), MODEL),
+                ],
+                false,
+                None,
+            ),
+        )?;
+    }
+
+    let mut html = String::from(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>hydractl model report</title>\
+         <style>body{font-family:sans-serif;max-width:960px;margin:2em auto;color:#222}\
+         table{border-collapse:collapse}td,th{padding:2px 8px;border-bottom:1px solid #ddd;text-align:left}\
+         figure{margin:1em 0}figcaption{color:#555;font-size:90%}</style></head><body>",
+    );
+    let _ = write!(
+        html,
+        "<h1>Model against measurements</h1><p>Data: <code>{}</code>; validation {:.1}–{:.1} s.<br>Method: {}.</p>",
+        escape(&signals.source),
+        comparison.validation_start_s,
+        comparison.validation_end_s,
+        escape(&comparison.method)
+    );
+    let _ = write!(html, "<h2>Verdict</h2><p><b>{}</b></p>", escape(&diagnosis.verdict));
+    html += "<h2>Fit per output</h2><table><tr><th>output</th><th>fit %</th><th>NRMSE</th></tr>";
+    for o in &comparison.outputs {
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{:.2}</td><td>{:.4}</td></tr>",
+            o.output, o.fit_percent, o.nrmse
+        );
+    }
+    html += "</table><h2>By sub-model and regime</h2><table><tr><th>part</th><th>NRMSE</th></tr>";
+    for (name, value) in &comparison.submodels {
+        let _ = write!(html, "<tr><td>{name}</td><td>{value:.4}</td></tr>");
+    }
+    html += "</table><br><table><tr><th>regime</th><th>samples</th><th>p_a</th><th>p_b</th><th>theta</th></tr>";
+    for r in &comparison.regimes {
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+            r.regime, r.samples, r.nrmse["p_a"], r.nrmse["p_b"], r.nrmse["theta"]
+        );
+    }
+    html += "</table><h2>Diagnosis</h2><table><tr><th>effect</th><th>output</th><th>before</th><th>after</th><th>significant</th><th>evidence</th></tr>";
+    for c in &diagnosis.candidates {
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{}</td><td>{}</td></tr>",
+            c.effect,
+            c.output,
+            c.validation_nrmse_before,
+            c.validation_nrmse_after,
+            if c.significant { "yes" } else { "no" },
+            escape(&c.evidence)
+        );
+    }
+    html += "</table><h2>Plots</h2>";
+    for (caption, svg) in figures {
+        let _ = write!(
+            html,
+            "<figure>{svg}<figcaption>{}</figcaption></figure>",
+            escape(&caption)
+        );
+    }
+    html += "</body></html>\n";
+    std::fs::write(out, html).with_context(|| format!("writing the report to {}", out.display()))?;
+    crate::emit(&format!("report written to {}\n", out.display()))
+}
+
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
