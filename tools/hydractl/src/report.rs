@@ -141,48 +141,48 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         figures.push((caption.to_owned(), svg?));
         Ok(())
     };
-    add(
-        "Chamber pressure A, measured and model (validation segment).",
-        chart(
-            "p_a: measured against model",
-            "t [s]",
+    let outputs = [
+        (
+            "p_a",
+            "Chamber pressure A, measured and model (validation segment).",
+            signals.p_a.as_slice(),
+            p.p_a.as_slice(),
+            bar,
             "bar",
-            &[
-                series("measured", at(&signals.p_a, bar), MEASURED),
-                series("model", at(&p.p_a, bar), MODEL),
-            ],
-            false,
-            None,
         ),
-    )?;
-    add(
-        "Chamber pressure B.",
-        chart(
-            "p_b: measured against model",
-            "t [s]",
+        (
+            "p_b",
+            "Chamber pressure B.",
+            signals.p_b.as_slice(),
+            p.p_b.as_slice(),
+            bar,
             "bar",
-            &[
-                series("measured", at(&signals.p_b, bar), MEASURED),
-                series("model", at(&p.p_b, bar), MODEL),
-            ],
-            false,
-            None,
         ),
-    )?;
-    add(
-        "Angle, as the encoder reports it.",
-        chart(
-            "theta: measured against model",
-            "t [s]",
+        (
+            "theta",
+            "Angle, as the encoder reports it.",
+            signals.theta.as_slice(),
+            p.theta.as_slice(),
+            1.0,
             "rad",
-            &[
-                series("measured", at(&signals.theta, 1.0), MEASURED),
-                series("model", at(&p.theta, 1.0), MODEL),
-            ],
-            false,
-            None,
         ),
-    )?;
+    ];
+    for (name, caption, measured, modelled, scale, unit) in outputs {
+        add(
+            caption,
+            chart(
+                &format!("{name}: measured against model"),
+                "t [s]",
+                unit,
+                &[
+                    series("measured", at(measured, scale), MEASURED),
+                    series("model", at(modelled, scale), MODEL),
+                ],
+                false,
+                None,
+            ),
+        )?;
+    }
     add(
         "Residuals over time: structure here is what the model misses.",
         chart(

@@ -250,6 +250,14 @@ impl Loss {
     }
 }
 
+/// The spread of each output a part predicts, on `range`.
+fn output_spreads(part: Part, signals: &Signals, range: Range<usize>) -> [f64; 2] {
+    match part {
+        Part::Hydraulic => [spread(&signals.p_a[range.clone()]), spread(&signals.p_b[range])],
+        Part::Mechanical => [spread(&signals.theta[range]), 1.0],
+    }
+}
+
 pub(crate) fn spread(x: &[f64]) -> f64 {
     let n = x.len().max(1) as f64;
     let mean = x.iter().sum::<f64>() / n;
@@ -282,10 +290,7 @@ fn fit_part(
     range: Range<usize>,
     options: FitOptions,
 ) -> Result<Working, ModelError> {
-    let spreads = match part {
-        Part::Hydraulic => [spread(&signals.p_a[range.clone()]), spread(&signals.p_b[range.clone()])],
-        Part::Mechanical => [spread(&signals.theta[range.clone()]), 1.0],
-    };
+    let spreads = output_spreads(part, signals, range.clone());
     let plain = Loss {
         spreads,
         threshold: f64::INFINITY,
@@ -347,10 +352,7 @@ fn part_cost(part: Part, w: &Working, signals: &Signals, range: Range<usize>) ->
     let Some(effects) = w.build() else {
         return f64::INFINITY;
     };
-    let spreads = match part {
-        Part::Hydraulic => [spread(&signals.p_a[range.clone()]), spread(&signals.p_b[range.clone()])],
-        Part::Mechanical => [spread(&signals.theta[range.clone()]), 1.0],
-    };
+    let spreads = output_spreads(part, signals, range.clone());
     let loss = Loss {
         spreads,
         threshold: f64::INFINITY,

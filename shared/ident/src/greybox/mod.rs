@@ -322,7 +322,7 @@ pub fn predict_mechanical(
                 &mut shaft,
             );
             let offset = match effects.quantization {
-                Some(q) => best_quantized_offset(q, &signals.theta[segment.clone()], &shaft),
+                Some(q) => best_quantized_offset(effects, q.step, &signals.theta[segment.clone()], &shaft),
                 None => 0.0,
             };
             let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, offset);
@@ -372,16 +372,12 @@ fn segment_error(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64
 /// With a coarse encoder, least squares on the staircase leaves the initial
 /// angle uncertain by up to half a step; this picks, within half a step, the
 /// shift of the segment that reproduces the measured staircase best.
-fn best_quantized_offset(quantization: hydractl_plant::effects::Quantization, measured: &[f64], shaft: &[f64]) -> f64 {
+fn best_quantized_offset(effects: &Effects, step: f64, measured: &[f64], shaft: &[f64]) -> f64 {
     const TRIES: usize = 21;
     let mut best = (f64::INFINITY, 0.0);
     for i in 0..TRIES {
-        let offset = quantization.step * (i as f64 / (TRIES - 1) as f64 - 0.5);
-        let error: f64 = measured
-            .iter()
-            .zip(shaft)
-            .map(|(m, s)| (m - quantization.quantize(s + offset)).powi(2))
-            .sum();
+        let offset = step * (i as f64 / (TRIES - 1) as f64 - 0.5);
+        let error = segment_error(effects, measured, shaft, offset);
         if error < best.0 {
             best = (error, offset);
         }
