@@ -10,6 +10,7 @@ use hydractl_samples::SensorSample;
 use hydractl_sim::stack::SensorEstimate;
 use hydractl_sim::Config;
 
+pub mod recording;
 pub mod supervision;
 
 #[derive(Parser, Debug)]
@@ -21,6 +22,36 @@ pub struct ProcessArgs {
     /// `SEQ,ANGLE_RAD,P_A_PA,P_B_PA` (the supervisor passes it on a restart).
     #[arg(long, value_parser = parse_resume)]
     pub resume: Option<Resume>,
+    #[command(flatten)]
+    pub record: RecordArgs,
+}
+
+/// Recorder only: where and how to record.
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+pub struct RecordArgs {
+    /// The MCAP file to write.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Start a new file every this many MB (parts `STEM_000.mcap`, …).
+    #[arg(long)]
+    pub split_size_mb: Option<f64>,
+    /// Start a new file every this many seconds.
+    #[arg(long)]
+    pub split_duration_s: Option<f64>,
+}
+
+impl RecordArgs {
+    /// The arguments that pass these on to the recorder, writing to `out`.
+    pub fn to_args(&self, out: &std::path::Path) -> Vec<String> {
+        let mut args = vec!["--out".to_owned(), out.display().to_string()];
+        if let Some(mb) = self.split_size_mb {
+            args.extend(["--split-size-mb".to_owned(), mb.to_string()]);
+        }
+        if let Some(s) = self.split_duration_s {
+            args.extend(["--split-duration-s".to_owned(), s.to_string()]);
+        }
+        args
+    }
 }
 
 /// Where a restarted plant resumes.
@@ -74,7 +105,8 @@ pub fn start(name: &str) -> Result<Started> {
     // supervisor): a killed parent must not leave the loop running.
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).context("setting the parent-death signal")?;
     let config = Config::load_or_default(args.config.as_deref())?;
-    let placed = if name == "supervisor" {
+    // The loop's CPU is for the loop: watching and writing files go elsewhere.
+    let placed = if name == "supervisor" || name == "recorder" {
         placement::keep_off_loop_cpu(config.timing.loop_cpu)
     } else {
         placement::pin_to_loop_cpu(config.timing.loop_cpu)

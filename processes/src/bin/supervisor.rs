@@ -3,14 +3,16 @@
 //! publishes the status of all, and on SIGTERM or SIGINT stops them and
 //! removes every file of the run.
 
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_loop, Bus, Outlet, Reader, RunScope};
 use hydractl_processes::supervision::{Supervised, PIPELINE};
+use hydractl_processes::RecordArgs;
 use hydractl_samples::{
-    fixed_name, service, FrictionSample, PlantReading, PositionSample, ProcessStatus, SensorSample, SupervisorStatus,
-    TorqueSample, ValveSample, MAX_PROCESSES,
+    fixed_name, service, FrictionSample, PlantReading, PositionSample, ProcessStatus, RecorderStatus, SensorSample,
+    SupervisorStatus, TorqueSample, ValveSample, MAX_PROCESSES,
 };
 
 /// The newest sequence number seen on each pipeline service.
@@ -65,9 +67,19 @@ fn main() -> Result<()> {
         .iter()
         .map(|(name, _, _)| Supervised::new(name, &dir, started.args.config.clone()))
         .collect();
-    let outcome = supervise(&started.bus, &scope, &policy, &mut children);
+    let mut recorder = started.args.record.out.as_ref().map(|out| RecorderChild {
+        child: Supervised::new("recorder", &dir, started.args.config.clone()),
+        args: started.args.record.clone(),
+        out: out.clone(),
+    });
+    let outcome = match &mut recorder {
+        Some(r) => r.start(&started.bus, &scope),
+        None => Ok(()),
+    }
+    .and_then(|()| supervise(&started.bus, &scope, &policy, &mut children, &mut recorder));
 
-    // Stop everything, then clean what is left.
+    // Stop the loop, then the recorder, which drains what the loop last
+    // published and finishes its file; then clean what is left.
     let deadline = Instant::now() + Duration::from_millis(policy.stop_timeout_ms);
     for child in children.iter().rev() {
         child.request_stop();
@@ -75,10 +87,63 @@ fn main() -> Result<()> {
     for child in children.iter_mut().rev() {
         child.finish_stop(deadline);
     }
+    if let Some(r) = &mut recorder {
+        r.child.request_stop();
+        // Finishing a file (its last chunk, summary and indexes) takes longer
+        // than a control process's stop.
+        r.child.finish_stop(Instant::now() + Duration::from_secs(10));
+    }
     drop(started.bus);
     // Clean up whatever the outcome; report the outcome's error first.
     let cleaned = scope.clean_stale();
     outcome.and(cleaned.map_err(Into::into))
+}
+
+/// The recorder, when the run records: started before the loop, so that
+/// the loop's first samples are recorded, and stopped after it.
+struct RecorderChild {
+    child: Supervised,
+    args: RecordArgs,
+    out: PathBuf,
+}
+
+impl RecorderChild {
+    /// Starts the recorder and waits until it is subscribed (its first
+    /// status); a recorder that dies first (an unwritable file, say) fails
+    /// the run, having said why on stderr.
+    fn start(&mut self, bus: &Bus, scope: &RunScope) -> Result<()> {
+        let ready: Reader<RecorderStatus> = Reader::open(bus, service::RECORDER_STATUS, 4)?;
+        self.child.spawn(scope, &self.args.to_args(&self.out))?;
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if ready.latest()?.is_some() {
+                return Ok(());
+            }
+            if self.child.reap() {
+                bail!(
+                    "the recorder exited before it started recording to {}",
+                    self.out.display()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        bail!("the recorder did not start within 10 s")
+    }
+
+    /// A restarted recorder writes a new file beside the first:
+    /// `STEM_restartN.mcap`, so that nothing recorded is overwritten.
+    fn restart(&mut self, scope: &RunScope) -> Result<()> {
+        let n = self.child.restarts + 1;
+        let stem = self
+            .out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let out = self.out.with_file_name(format!("{stem}_restart{n}.mcap"));
+        self.child.spawn(scope, &self.args.to_args(&out))?;
+        self.child.restarts = n;
+        Ok(())
+    }
 }
 
 fn supervise(
@@ -86,6 +151,7 @@ fn supervise(
     scope: &RunScope,
     policy: &hydractl_sim::SupervisorConfig,
     children: &mut [Supervised],
+    recorder: &mut Option<RecorderChild>,
 ) -> Result<()> {
     for child in children.iter_mut() {
         child.spawn(scope, &[])?;
@@ -98,6 +164,7 @@ fn supervise(
     let startup_grace = Duration::from_millis(500);
     let own_pid = std::process::id();
     let mut last_status = Instant::now();
+    let mut status_seq = 0u64;
     let mut failure = None;
     run_loop(&[], Some(Duration::from_millis(5)), |_| {
         hydractl_bus::guarded(&mut failure, || -> Result<()> {
@@ -138,8 +205,19 @@ fn supervise(
                     child.schedule_restart(now, policy);
                 }
             }
+            if let Some(r) = recorder.as_mut() {
+                if r.child.reap() {
+                    cleanup_needed = true;
+                    r.child.schedule_restart(now, policy);
+                }
+            }
             if cleanup_needed {
                 scope.remove_dead_nodes()?;
+            }
+            if let Some(r) = recorder.as_mut() {
+                if r.child.restart_due(now) {
+                    r.restart(scope)?;
+                }
             }
             for child in children.iter_mut() {
                 if child.restart_due(now) {
@@ -163,7 +241,9 @@ fn supervise(
             }
             if now.saturating_duration_since(last_status) >= Duration::from_millis(100) {
                 last_status = now;
-                status.publish(status_of(children, own_pid, now, hung_after))?;
+                let recorder = recorder.as_ref().map(|r| &r.child);
+                status.publish(status_of(status_seq, children, recorder, own_pid, now, hung_after))?;
+                status_seq += 1;
             }
             Ok(())
         })
@@ -171,8 +251,16 @@ fn supervise(
     failure.map_or(Ok(()), Err)
 }
 
-fn status_of(children: &[Supervised], own_pid: u32, now: Instant, hung_after: Duration) -> SupervisorStatus {
+fn status_of(
+    seq: u64,
+    children: &[Supervised],
+    recorder: Option<&Supervised>,
+    own_pid: u32,
+    now: Instant,
+    hung_after: Duration,
+) -> SupervisorStatus {
     let mut status = SupervisorStatus {
+        seq,
         stage_time_ns: clock::now_ns(),
         ..SupervisorStatus::default()
     };
@@ -182,6 +270,15 @@ fn status_of(children: &[Supervised], own_pid: u32, now: Instant, hung_after: Du
         pid: c.pid().unwrap_or(0),
         restarts: c.restarts,
         healthy: u32::from(c.is_running() && now.saturating_duration_since(c.last_output) <= hung_after),
+        reserved: 0,
+    });
+    // The recorder has no output of its own on the loop: healthy while it runs.
+    let recorder = recorder.map(|r| ProcessStatus {
+        name: fixed_name(r.name),
+        variant: [0; 16],
+        pid: r.pid().unwrap_or(0),
+        restarts: r.restarts,
+        healthy: u32::from(r.is_running()),
         reserved: 0,
     });
     let supervisor = ProcessStatus {
@@ -196,7 +293,7 @@ fn status_of(children: &[Supervised], own_pid: u32, now: Instant, hung_after: Du
     for (slot, entry) in status
         .processes
         .iter_mut()
-        .zip(entries.chain(std::iter::once(supervisor)))
+        .zip(entries.chain(recorder).chain(std::iter::once(supervisor)))
     {
         *slot = entry;
         count += 1;

@@ -11,7 +11,7 @@ mod scope;
 mod wait;
 
 pub use outlet::{Inlet, Outlet, Reader};
-pub use scope::{quiet_ipc_logging, Bus, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
+pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{guarded, run_loop, run_single, Flow, LoopExit, Wake};
 
 /// The directory of the running executable, where cargo puts its sibling

@@ -48,13 +48,13 @@ fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
 
 /// Publishes samples of one service and wakes its listeners.
 pub struct Outlet<T: ZeroCopySend + Debug + Copy + 'static> {
-    name: &'static str,
+    name: String,
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
 }
 
 impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
-    pub fn open(bus: &Bus, name: &'static str) -> Result<Self, BusError> {
+    pub fn open(bus: &Bus, name: &str) -> Result<Self, BusError> {
         let (data, event) = open_service::<T>(bus, name)?;
         let publisher = data
             .publisher_builder()
@@ -65,14 +65,14 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
             .create()
             .map_err(|e| BusError::ipc(format!("notifier on {name}"), e))?;
         Ok(Self {
-            name,
+            name: name.to_owned(),
             publisher,
             notifier,
         })
     }
 
-    pub fn name(&self) -> &'static str {
-        self.name
+    pub fn name(&self) -> &str {
+        &self.name
     }
 
     /// Sends one sample zero-copy and notifies. Allocation-free.
@@ -96,25 +96,28 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
 /// its own tick (supervisor, monitor) or reads a side input when another
 /// input wakes it. It opens no listener, so publishers do not notify it.
 pub struct Reader<T: ZeroCopySend + Debug + Copy + 'static> {
-    name: &'static str,
+    name: String,
     subscriber: Subscriber<ipc::Service, T, ()>,
 }
 
 impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
     /// `buffer` samples are kept for this reader: 1–4 for one that only
     /// wants the newest, more for a monitor that wants every one.
-    pub fn open(bus: &Bus, name: &'static str, buffer: usize) -> Result<Self, BusError> {
+    pub fn open(bus: &Bus, name: &str, buffer: usize) -> Result<Self, BusError> {
         let (data, _) = open_service::<T>(bus, name)?;
         let subscriber = data
             .subscriber_builder()
             .buffer_size(buffer.clamp(1, MAX_BUFFER))
             .create()
             .map_err(|e| BusError::ipc(format!("subscriber on {name}"), e))?;
-        Ok(Self { name, subscriber })
+        Ok(Self {
+            name: name.to_owned(),
+            subscriber,
+        })
     }
 
-    pub fn name(&self) -> &'static str {
-        self.name
+    pub fn name(&self) -> &str {
+        &self.name
     }
 
     /// The next waiting sample, oldest first.
@@ -143,7 +146,7 @@ pub struct Inlet<T: ZeroCopySend + Debug + Copy + 'static> {
 }
 
 impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
-    pub fn open(bus: &Bus, name: &'static str, buffer: usize) -> Result<Self, BusError> {
+    pub fn open(bus: &Bus, name: &str, buffer: usize) -> Result<Self, BusError> {
         let reader = Reader::open(bus, name, buffer)?;
         let (_, event) = open_service::<T>(bus, name)?;
         let listener = event
@@ -153,8 +156,8 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
         Ok(Self { reader, listener })
     }
 
-    pub fn name(&self) -> &'static str {
-        self.reader.name
+    pub fn name(&self) -> &str {
+        &self.reader.name
     }
 
     pub fn listener(&self) -> &Listener<ipc::Service> {

@@ -149,6 +149,27 @@ impl RunScope {
             .unwrap_or_default()
     }
 
+    /// Every publish-subscribe service of this run, with the type name of its
+    /// payload: how a recorder finds what to record, including services that
+    /// appear while it runs.
+    pub fn publish_subscribe_services(&self) -> Result<Vec<DiscoveredService>, BusError> {
+        let mut found = Vec::new();
+        ipc::Service::list(&self.config()?, |details| {
+            if let iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(pattern) =
+                details.static_details.messaging_pattern()
+            {
+                found.push(DiscoveredService {
+                    name: details.static_details.name().as_str().to_owned(),
+                    type_name: pattern.message_type_details().payload.type_name().to_string(),
+                });
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| BusError::ipc("listing services", e))?;
+        found.sort_by(|a, b| a.name.cmp(&b.name));
+        Ok(found)
+    }
+
     /// Calls `visit` with every node of this run, alive or dead.
     fn each_node(&self, mut visit: impl FnMut(NodeState<ipc::Service>)) -> Result<(), BusError> {
         Node::<ipc::Service>::list(&self.config()?, |state| {
@@ -162,6 +183,14 @@ impl RunScope {
     pub fn has_files(&self) -> bool {
         self.root().exists() || !self.shm_files().is_empty()
     }
+}
+
+/// A publish-subscribe service found by discovery.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DiscoveredService {
+    pub name: String,
+    /// The payload's type name, as iceoryx2 keeps it in the service's config.
+    pub type_name: String,
 }
 
 /// A process's node on the bus.

@@ -9,7 +9,11 @@
 //! causality are read from the data. Times are CLOCK_MONOTONIC nanoseconds,
 //! shared by every process on the machine.
 
+use bytemuck::{Pod, Zeroable};
 use iceoryx2::prelude::*;
+
+mod schema;
+pub use schema::{visit_kind, KindVisitor, Recordable, SampleKind, CDR_HEADER, KINDS, STACK_SERVICES};
 
 /// Service names. Each publish-subscribe service has an event service of
 /// the same name, notified after every sample.
@@ -24,6 +28,8 @@ pub mod service {
     pub const VALVE: &str = "hydractl/valve";
     /// The supervisor's view of every process.
     pub const SUPERVISOR_STATUS: &str = "hydractl/supervisor/status";
+    /// The recorder's progress: messages written, samples missed, files.
+    pub const RECORDER_STATUS: &str = "hydractl/recorder/status";
 }
 
 /// Validity flags of a sensor sample.
@@ -56,7 +62,7 @@ pub mod code {
 }
 
 /// What the plant's sensors read (on the vehicle: what arrives on the bus).
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::PlantReading")]
 pub struct PlantReading {
@@ -73,7 +79,7 @@ pub struct PlantReading {
     pub late_commands: u64,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::SensorSample")]
 pub struct SensorSample {
@@ -92,7 +98,7 @@ pub struct SensorSample {
     pub reserved: u32,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::FrictionSample")]
 pub struct FrictionSample {
@@ -105,7 +111,7 @@ pub struct FrictionSample {
     pub blended_velocity: f64,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::PositionSample")]
 pub struct PositionSample {
@@ -124,7 +130,7 @@ pub struct PositionSample {
     pub variant: u32,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::TorqueSample")]
 pub struct TorqueSample {
@@ -139,7 +145,7 @@ pub struct TorqueSample {
     pub reserved: u32,
 }
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::ValveSample")]
 pub struct ValveSample {
@@ -156,7 +162,7 @@ pub struct ValveSample {
 }
 
 /// One process as the supervisor sees it.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::ProcessStatus")]
 pub struct ProcessStatus {
@@ -172,10 +178,12 @@ pub struct ProcessStatus {
 
 pub const MAX_PROCESSES: usize = 12;
 
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::SupervisorStatus")]
 pub struct SupervisorStatus {
+    /// Counts the statuses published, so a recording shows a lost one.
+    pub seq: u64,
     pub stage_time_ns: u64,
     pub processes: [ProcessStatus; MAX_PROCESSES],
     pub process_count: u32,
@@ -183,9 +191,32 @@ pub struct SupervisorStatus {
     pub plant_is_simulation: u32,
 }
 
+/// The recorder's progress, published every 100 ms.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::RecorderStatus")]
+pub struct RecorderStatus {
+    pub seq: u64,
+    pub stage_time_ns: u64,
+    /// Messages written to MCAP since the recorder started.
+    pub messages: u64,
+    /// Samples lost because the recorder fell behind: its buffer for a
+    /// service was full, and the publisher (never blocked) overwrote them.
+    pub dropped: u64,
+    /// Sequence numbers a publisher skipped itself (a stage that took the
+    /// newest reading and skipped one, a restarted process): not losses.
+    pub gaps: u64,
+    /// Bytes written to files, compressed.
+    pub bytes: u64,
+    /// Files started (more than one when splitting).
+    pub files: u32,
+    /// Channels being recorded.
+    pub channels: u32,
+}
+
 /// The latency benchmark's sample: one pass through the five stages, with
 /// the time each hop handed it on.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
 #[type_name("hydractl::BenchSample")]
 pub struct BenchSample {
@@ -282,7 +313,8 @@ mod tests {
         assert_eq!(size_of::<TorqueSample>(), 6 * 8 + 8);
         assert_eq!(size_of::<ValveSample>(), 5 * 8 + 8);
         assert_eq!(size_of::<ProcessStatus>(), 16 + 16 + 16);
-        assert_eq!(size_of::<SupervisorStatus>(), 8 + MAX_PROCESSES * 48 + 8);
+        assert_eq!(size_of::<SupervisorStatus>(), 16 + MAX_PROCESSES * 48 + 8);
+        assert_eq!(size_of::<RecorderStatus>(), 7 * 8);
     }
 
     #[test]

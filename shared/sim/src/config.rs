@@ -294,6 +294,11 @@ impl Config {
     }
 
     /// The file's config, or the built-in default when no file is given.
+    /// The config as TOML, for a recording's metadata.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_else(|e| format!("# the config cannot be written as TOML: {e}"))
+    }
+
     pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
         match path {
             Some(path) => Self::load(path),

@@ -1,7 +1,9 @@
 //! `hydractl`: the command line of the hydraulic rotator control stack.
 
 mod bench_latency;
+mod bench_record;
 mod model;
+mod recording;
 mod report;
 mod run;
 
@@ -37,6 +39,13 @@ enum Command {
     /// The grey-box model against measurements: fit, compare, diagnose, add an effect, report.
     #[command(subcommand)]
     Model(model::ModelCommand),
+    /// Attach a recorder to the run already alive: every sample to MCAP.
+    Record(recording::RecordArgs),
+    /// Republish a recording's samples on their services.
+    Replay(recording::ReplayArgs),
+    /// Read recordings.
+    #[command(subcommand)]
+    Mcap(recording::McapCommand),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -160,6 +169,8 @@ enum BenchCommand {
     /// Sensor-to-valve latency of the five stages over iceoryx2 between
     /// processes, over UDP loopback between processes, and as function calls.
     Latency(bench_latency::LatencyArgs),
+    /// Sustained recording throughput against the mcap crate's raw write speed.
+    Record(bench_record::RecordBenchArgs),
 }
 
 /// Writes to stdout; a reader that closed the pipe early (`| head`) ends
@@ -182,9 +193,13 @@ fn main() -> Result<()> {
         Command::Linearize(args) => linearize(args),
         Command::Ident(IdentCommand::Tf(args)) => ident_tf(args),
         Command::Model(command) => model::run(command),
+        Command::Record(args) => recording::record(args),
+        Command::Replay(args) => recording::replay(args),
+        Command::Mcap(command) => recording::mcap(command),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
         Command::Bench(BenchCommand::Diagnose { durations, repeat }) => model::bench_diagnose(&durations, repeat),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
+        Command::Bench(BenchCommand::Record(args)) => bench_record::bench(args),
         Command::BenchStage(args) => bench_latency::stage(args),
     }
 }
@@ -287,7 +302,7 @@ fn linearize(args: LinearizeArgs) -> Result<()> {
 }
 
 fn ident_tf(args: IdentTfArgs) -> Result<()> {
-    let data = hydractl_ident::Dataset::from_csv(&args.data, &["t", &args.input, &args.output])?;
+    let data = recording::load_dataset(&args.data, &["t", &args.input, &args.output])?;
     let ts = data.sample_time()?;
     let method = match args.method {
         IdentMethod::Pem => hydractl_ident::Method::Pem,

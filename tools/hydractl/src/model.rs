@@ -109,7 +109,7 @@ pub fn run(command: ModelCommand) -> Result<()> {
 }
 
 pub fn load_signals(path: &Path) -> Result<Signals> {
-    let data = Dataset::from_csv(path, &greybox::REQUIRED_COLUMNS)?;
+    let data = crate::recording::load_dataset(path, &greybox::REQUIRED_COLUMNS)?;
     Ok(Signals::from_dataset(&data)?)
 }
 

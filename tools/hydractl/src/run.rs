@@ -2,7 +2,7 @@
 //! the loop's samples, shows a live status, and writes the run's summary.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -24,6 +24,11 @@ pub struct RunArgs {
     /// Write the run's summary as JSON.
     #[arg(long)]
     summary_json: Option<PathBuf>,
+    /// Record every sample to this MCAP file.
+    #[arg(long)]
+    record: Option<PathBuf>,
+    #[command(flatten)]
+    split: crate::recording::SplitArgs,
 }
 
 /// Sensor-to-valve latency, counted in 1 µs bins up to 100 ms: fixed
@@ -96,6 +101,21 @@ struct RunSummary {
     /// Valve samples published in neutral with a fault flag.
     valve_fault_cycles: u64,
     processes: Vec<ProcessSummary>,
+    /// What the recording holds, read back from its file(s) after the run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    recording: Option<RecordingReport>,
+}
+
+#[derive(Serialize)]
+struct RecordingReport {
+    files: Vec<String>,
+    messages: u64,
+    channels: usize,
+    /// Samples the recorder lost by falling behind (its last status).
+    dropped: u64,
+    /// Sequence numbers the publishers skipped themselves (a stage that took
+    /// the newest reading): in the data, not lost by the recording.
+    gaps: u64,
 }
 
 #[derive(Default)]
@@ -132,6 +152,9 @@ pub fn run(args: RunArgs) -> Result<()> {
     if let Some(config) = &args.config {
         command.arg("--config").arg(config);
     }
+    if let Some(out) = &args.record {
+        command.args(args.split.recorder_args(out)?);
+    }
     // Its own process group: a terminal's Ctrl-C reaches only us, and we
     // stop the supervisor, which stops the loop in order.
     use std::os::unix::process::CommandExt;
@@ -143,11 +166,25 @@ pub fn run(args: RunArgs) -> Result<()> {
         .with_context(|| format!("starting {}", dir.join("supervisor").display()))?;
     let supervisor_pid = supervisor.id();
     let outcome = watch(&scope, &args, supervisor_pid);
-    stop_supervisor(&mut supervisor)?;
-    let summary = outcome?;
+    // The supervisor stops the loop, then lets the recorder finish its file.
+    stop_child(&mut supervisor, "the supervisor", Duration::from_secs(15))?;
+    let mut summary = outcome?;
+    if let Some(out) = &args.record {
+        summary.recording = Some(recording_report(out, &args.split)?);
+    }
     if let Some(path) = &args.summary_json {
         std::fs::write(path, serde_json::to_string_pretty(&summary)? + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if let Some(r) = &summary.recording {
+        eprintln!(
+            "recorded {} messages on {} channels, {} dropped by the recorder, {} skipped by publishers, to {}",
+            r.messages,
+            r.channels,
+            r.dropped,
+            r.gaps,
+            r.files.join(", ")
+        );
     }
     crate::emit(&format!(
         "{} cycles, {} deadline misses, latency p50 {} µs p99 {} µs p99.9 {} µs max {:.0} µs, tracking error rms {:.4} rad max {:.4} rad, {} restart(s)\n",
@@ -291,7 +328,63 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         rms_tracking_error_rad: (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
         valve_fault_cycles: faults,
         processes,
+        recording: None,
     })
+}
+
+/// Reads back the files the recorder wrote.
+fn recording_report(out: &Path, split: &crate::recording::SplitArgs) -> Result<RecordingReport> {
+    let files = if split.split_size_mb.is_some() || split.split_duration_s.is_some() {
+        let stem = out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let dir = out
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let mut parts: Vec<PathBuf> = std::fs::read_dir(dir)
+            .with_context(|| format!("listing {}", dir.display()))?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| {
+                p.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .is_some_and(|n| {
+                        n.strip_prefix(&format!("{stem}_"))
+                            .and_then(|rest| rest.strip_suffix(".mcap"))
+                            .is_some_and(|index| index.len() == 3 && index.bytes().all(|b| b.is_ascii_digit()))
+                    })
+            })
+            .collect();
+        parts.sort();
+        parts
+    } else {
+        vec![out.to_path_buf()]
+    };
+    let mut report = RecordingReport {
+        files: Vec::new(),
+        messages: 0,
+        channels: 0,
+        dropped: 0,
+        gaps: 0,
+    };
+    for file in files {
+        let summary = hydractl_recording::summarize(&file)?;
+        report.messages += summary.messages;
+        report.channels = report.channels.max(summary.channels.len());
+        report.gaps += summary.channels.iter().map(|c| c.missing).sum::<u64>();
+        let mut dropped = 0;
+        hydractl_recording::read_messages(&file, |m| {
+            if let Some(status) = hydractl_recording::decode::<hydractl_samples::RecorderStatus>(m) {
+                dropped = status.dropped;
+            }
+            Ok(())
+        })?;
+        report.dropped = report.dropped.max(dropped);
+        report.files.push(file.display().to_string());
+    }
+    Ok(report)
 }
 
 fn variant_name(code: u32) -> &'static str {
@@ -329,16 +422,17 @@ fn merge_status(processes: &mut Vec<ProcessSummary>, status: &SupervisorStatus) 
     }
 }
 
-fn stop_supervisor(supervisor: &mut Child) -> Result<()> {
-    let _ = kill(Pid::from_raw(supervisor.id() as i32), Signal::SIGTERM);
-    let deadline = Instant::now() + Duration::from_secs(5);
+/// SIGTERM, then SIGKILL if `child` has not stopped within `grace`.
+pub(crate) fn stop_child(child: &mut Child, what: &str, grace: Duration) -> Result<()> {
+    let _ = kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM);
+    let deadline = Instant::now() + grace;
     while Instant::now() < deadline {
-        if supervisor.try_wait()?.is_some() {
+        if child.try_wait()?.is_some() {
             return Ok(());
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    supervisor.kill().context("killing the supervisor")?;
-    supervisor.wait()?;
+    child.kill().with_context(|| format!("killing {what}"))?;
+    child.wait()?;
     Ok(())
 }

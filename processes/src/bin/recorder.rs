@@ -1,0 +1,72 @@
+//! The recorder: writes every sample of the run to one MCAP file (or its
+//! parts). It subscribes to the stack's services at start and to any other
+//! service discovery finds later, drains them on its own 5 ms tick off the
+//! loop's CPU, and never blocks a publisher: a sample it was too slow for
+//! is counted as missed in its status. It closes a chunk every second, so a
+//! killed recorder leaves a file readable up to that chunk.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use hydractl_bus::{clock, run_loop, Outlet};
+use hydractl_processes::recording::Recorder;
+use hydractl_recording::{RecordOptions, RecordingWriter};
+use hydractl_samples::{service, RecorderStatus};
+
+const TICK: Duration = Duration::from_millis(5);
+const DISCOVER_EVERY: Duration = Duration::from_millis(200);
+const FLUSH_EVERY: Duration = Duration::from_secs(1);
+const STATUS_EVERY: Duration = Duration::from_millis(100);
+
+fn main() -> Result<()> {
+    let started = hydractl_processes::start("recorder")?;
+    let record = &started.args.record;
+    let out = record.out.clone().context("recorder: --out FILE is required")?;
+    let metadata = BTreeMap::from([
+        ("software".to_owned(), format!("hydractl {}", env!("CARGO_PKG_VERSION"))),
+        ("config".to_owned(), started.config.to_toml()),
+        ("ipc_prefix".to_owned(), started.bus.scope().prefix().to_owned()),
+    ]);
+    let options = RecordOptions {
+        split_bytes: record.split_size_mb.map(|mb| (mb * 1e6) as u64),
+        split_seconds: record.split_duration_s,
+        metadata,
+        ..RecordOptions::default()
+    };
+    let writer = RecordingWriter::create(&out, options).with_context(|| format!("recorder: {}", out.display()))?;
+    let bus = &started.bus;
+    let mut recorder = Recorder::new(bus, writer)?;
+    let status: Outlet<RecorderStatus> = Outlet::open(bus, service::RECORDER_STATUS)?;
+    recorder.discover(bus)?;
+    status.publish(recorder.status(clock::now_ns()))?;
+
+    let mut last_discovery = Instant::now();
+    let mut last_flush = Instant::now();
+    let mut last_status = Instant::now();
+    let mut failure = None;
+    run_loop(&[], Some(TICK), |_| {
+        hydractl_bus::guarded(&mut failure, || -> Result<()> {
+            recorder.drain()?;
+            let now = Instant::now();
+            if now.duration_since(last_discovery) >= DISCOVER_EVERY {
+                last_discovery = now;
+                recorder.discover(bus)?;
+            }
+            if now.duration_since(last_flush) >= FLUSH_EVERY {
+                last_flush = now;
+                recorder.flush()?;
+            }
+            if now.duration_since(last_status) >= STATUS_EVERY {
+                last_status = now;
+                status.publish(recorder.status(clock::now_ns()))?;
+            }
+            Ok(())
+        })
+    })?;
+    let files = recorder.finish()?;
+    for file in files {
+        eprintln!("recorder: wrote {}", file.display());
+    }
+    failure.map_or(Ok(()), Err)
+}

@@ -1,0 +1,61 @@
+//! MCAP recordings of the live stack. Each iceoryx2 service is one channel;
+//! each message is the CDR header followed by the sample's own bytes, with
+//! the sample's `ros2msg` schema, so Foxglove and PlotJuggler decode it by
+//! reflection. This crate knows files and bytes, not IPC: the recorder
+//! process feeds it what it receives.
+
+mod export;
+mod info;
+mod read;
+mod write;
+
+pub use export::{export_rows, write_csv, Export, ModelRow, MODEL_COLUMNS};
+pub use info::{summarize, ChannelSummary, RecordingSummary};
+pub use read::{decode, read_messages, ReadOutcome, RecordedMessage};
+pub use write::{ChannelHandle, RecordOptions, RecordingWriter};
+
+use std::path::PathBuf;
+
+/// The message encoding of every channel.
+pub const MESSAGE_ENCODING: &str = "cdr";
+/// The schema encoding of every schema.
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: MCAP: {source}")]
+    Mcap { path: PathBuf, source: mcap::McapError },
+    #[error("{path}: channel `{topic}` has schema `{schema}`, which hydractl does not know")]
+    UnknownSchema {
+        path: PathBuf,
+        topic: String,
+        schema: String,
+    },
+    #[error("{path}: message {index} on `{topic}` has {got} bytes after the CDR header, `{schema}` needs {want}")]
+    BadSize {
+        path: PathBuf,
+        topic: String,
+        schema: String,
+        index: u64,
+        got: usize,
+        want: usize,
+    },
+    #[error("{path}: message {index} on `{topic}` does not start with the little-endian CDR header")]
+    BadHeader { path: PathBuf, topic: String, index: u64 },
+    #[error("{path}: no channel `{topic}`; the recording has: {have}")]
+    MissingChannel { path: PathBuf, topic: String, have: String },
+    #[error("{path}: no sample of `{topic}` matches a sensor reading; nothing to export")]
+    NothingToExport { path: PathBuf, topic: String },
+    #[error("{path}: a sample of {got} bytes was written to channel `{topic}`, whose `{schema}` has {want}")]
+    WrongPayload {
+        path: PathBuf,
+        topic: String,
+        schema: String,
+        got: usize,
+        want: usize,
+    },
+    #[error("{path}: cannot write CSV: {source}")]
+    Csv { path: PathBuf, source: csv::Error },
+}

@@ -1,0 +1,239 @@
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use hydractl_recording::{
+    decode, export_rows, read_messages, summarize, RecordOptions, RecordingError, RecordingWriter,
+};
+use hydractl_samples::{service, PlantReading, PositionSample, Recordable, SensorSample, ValveSample};
+
+fn sensor(seq: u64) -> SensorSample {
+    SensorSample {
+        sensor_seq: seq,
+        sensor_time_ns: 1_000_000_000 + seq * 1_000_000,
+        stage_time_ns: 1_000_000_000 + seq * 1_000_000 + 20_000,
+        angle: 0.001 * seq as f64,
+        p_a: 8.0e6,
+        p_b: 7.0e6,
+        valid: 7,
+        ..SensorSample::default()
+    }
+}
+
+fn valve(seq: u64) -> ValveSample {
+    ValveSample {
+        sensor_seq: seq,
+        sensor_time_ns: 1_000_000_000 + seq * 1_000_000,
+        stage_time_ns: 1_000_000_000 + seq * 1_000_000 + 60_000,
+        command: -0.5 + 0.001 * seq as f64,
+        ..ValveSample::default()
+    }
+}
+
+fn reading(seq: u64) -> PlantReading {
+    PlantReading {
+        sensor_seq: seq,
+        sensor_time_ns: 1_000_000_000 + seq * 1_000_000,
+        angle: 0.001 * seq as f64,
+        p_a: 8.0e6,
+        p_b: 7.0e6,
+        ..PlantReading::default()
+    }
+}
+
+fn position(seq: u64) -> PositionSample {
+    PositionSample {
+        sensor_seq: seq,
+        sensor_time_ns: 1_000_000_000 + seq * 1_000_000,
+        stage_time_ns: 1_000_000_000 + seq * 1_000_000 + 40_000,
+        reference_angle: 0.5,
+        ..PositionSample::default()
+    }
+}
+
+/// A recording of `n` periods of the three channels the model tools read.
+fn record(path: &Path, n: u64, options: RecordOptions) -> Vec<std::path::PathBuf> {
+    let mut w = RecordingWriter::create(path, options).expect("create");
+    let s = w.add_channel(service::SENSOR, &SensorSample::KIND).expect("channel");
+    let v = w.add_channel(service::VALVE, &ValveSample::KIND).expect("channel");
+    let p = w
+        .add_channel(service::POSITION, &PositionSample::KIND)
+        .expect("channel");
+    let r = w
+        .add_channel(service::PLANT_READING, &PlantReading::KIND)
+        .expect("channel");
+    for seq in 0..n {
+        w.write_sample(r, &reading(seq)).expect("write");
+        w.write_sample(s, &sensor(seq)).expect("write");
+        // The stages skipped reading 40, as a loaded stage may.
+        if seq != 40 {
+            w.write_sample(p, &position(seq)).expect("write");
+            w.write_sample(v, &valve(seq)).expect("write");
+        }
+    }
+    w.finish().expect("finish")
+}
+
+#[test]
+fn samples_come_back_bit_for_bit_with_their_metadata() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("run.mcap");
+    let metadata = BTreeMap::from([("version".to_owned(), "0.1.0".to_owned())]);
+    let files = record(
+        &path,
+        500,
+        RecordOptions {
+            metadata: metadata.clone(),
+            ..RecordOptions::default()
+        },
+    );
+    assert_eq!(files, vec![path.clone()]);
+    let mut sensors = Vec::new();
+    let outcome = read_messages(&path, |m| {
+        if let Some(s) = decode::<SensorSample>(m) {
+            assert_eq!(m.log_time_ns, s.stage_time_ns);
+            sensors.push(s);
+        }
+        Ok(())
+    })
+    .expect("read");
+    assert_eq!(outcome.messages, 4 * 500 - 2);
+    assert_eq!(outcome.truncated, None);
+    assert_eq!(outcome.metadata, metadata);
+    assert_eq!(sensors, (0..500).map(sensor).collect::<Vec<_>>());
+
+    let summary = summarize(&path).expect("summary");
+    let valve = summary
+        .channels
+        .iter()
+        .find(|c| c.topic == service::VALVE)
+        .expect("valve");
+    assert_eq!(
+        (valve.messages, valve.first_seq, valve.last_seq, valve.missing),
+        (499, 0, 499, 1)
+    );
+    let plant = summary
+        .channels
+        .iter()
+        .find(|c| c.topic == service::PLANT_READING)
+        .expect("plant");
+    assert!((plant.rate_hz - 1000.0).abs() < 1e-6);
+    assert_eq!(valve.schema, "hydractl/msg/ValveSample");
+}
+
+#[test]
+fn export_joins_by_sequence_on_the_loop_clock() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("run.mcap");
+    record(&path, 100, RecordOptions::default());
+    let export = export_rows(&path).expect("export");
+    let rows = export.rows;
+    assert_eq!(rows.len(), 100);
+    // The skipped reading's row holds the previous command.
+    assert_eq!(export.held, 1);
+    assert_eq!(rows[40].u, rows[39].u);
+    assert!((rows[40].t - 0.040).abs() < 1e-12);
+    assert!((rows[10].t - 0.010).abs() < 1e-12);
+    assert!((rows[10].u - valve(10).command).abs() < 1e-15);
+    assert!((rows[10].p_a - 80.0).abs() < 1e-12);
+    assert!((rows[10].theta - 0.010).abs() < 1e-15);
+    assert_eq!(rows[10].theta_ref, 0.5);
+}
+
+#[test]
+fn splitting_by_size_and_by_duration_makes_parts_that_each_read_alone() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let by_time = record(
+        &dir.path().join("timed.mcap"),
+        3000,
+        RecordOptions {
+            split_seconds: Some(1.0),
+            ..RecordOptions::default()
+        },
+    );
+    assert_eq!(by_time.len(), 3, "{by_time:?}");
+    assert!(by_time[0].ends_with("timed_000.mcap"));
+    let counts: Vec<u64> = by_time.iter().map(|f| summarize(f).expect("part").messages).collect();
+    assert_eq!(counts, vec![4000 - 2, 4000, 4000]);
+
+    let by_size = record(
+        &dir.path().join("sized.mcap"),
+        20_000,
+        RecordOptions {
+            split_bytes: Some(64 * 1024),
+            chunk_bytes: 16 * 1024,
+            ..RecordOptions::default()
+        },
+    );
+    assert!(by_size.len() >= 2, "{by_size:?}");
+    let total: u64 = by_size.iter().map(|f| summarize(f).expect("part").messages).sum();
+    assert_eq!(total, 80_000 - 2);
+}
+
+#[test]
+fn a_file_cut_short_reads_up_to_its_last_whole_chunk() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("killed.mcap");
+    let mut w = RecordingWriter::create(&path, RecordOptions::default()).expect("create");
+    let v = w.add_channel(service::VALVE, &ValveSample::KIND).expect("channel");
+    for seq in 0..300 {
+        w.write_sample(v, &valve(seq)).expect("write");
+    }
+    w.flush().expect("flush");
+    let flushed = std::fs::read(&path).expect("read");
+    for seq in 300..600 {
+        w.write_sample(v, &valve(seq)).expect("write");
+    }
+    w.flush().expect("flush");
+    let later = std::fs::read(&path).expect("read");
+    // As a killed recorder leaves it: the first chunk whole, the second cut.
+    let cut = &later[..flushed.len() + (later.len() - flushed.len()) / 2];
+    let cut_path = dir.path().join("cut.mcap");
+    std::fs::write(&cut_path, cut).expect("write");
+    let summary = summarize(&cut_path).expect("a cut file still reads");
+    assert_eq!(summary.messages, 300);
+    assert!(summary.truncated.is_some());
+    // And one that stopped between chunks.
+    std::fs::write(&cut_path, &flushed).expect("write");
+    let summary = summarize(&cut_path).expect("read");
+    assert_eq!(summary.messages, 300);
+    assert!(summary.truncated.as_deref().is_some_and(|t| t.contains("summary")));
+}
+
+#[test]
+fn bad_files_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("notes.mcap");
+    std::fs::write(&path, "not a recording").expect("write");
+    let e = summarize(&path).expect_err("not mcap");
+    assert!(
+        e.to_string().contains("notes.mcap") && e.to_string().contains("not an MCAP"),
+        "{e}"
+    );
+
+    let missing = dir.path().join("absent.mcap");
+    let e = summarize(&missing).expect_err("absent");
+    assert!(e.to_string().contains("absent.mcap"), "{e}");
+
+    // Only the readings: export says which channel is missing and what there is.
+    let path = dir.path().join("readings_only.mcap");
+    let mut w = RecordingWriter::create(&path, RecordOptions::default()).expect("create");
+    let r = w
+        .add_channel(service::PLANT_READING, &PlantReading::KIND)
+        .expect("channel");
+    w.write_sample(r, &reading(0)).expect("write");
+    w.finish().expect("finish");
+    match export_rows(&path) {
+        Err(RecordingError::MissingChannel { topic, have, .. }) => {
+            assert_eq!(topic, service::VALVE);
+            assert_eq!(have, service::PLANT_READING);
+        }
+        other => panic!("expected a missing channel, got {other:?}"),
+    }
+
+    // A payload that is not its channel's type.
+    let path = dir.path().join("wrong.mcap");
+    let mut w = RecordingWriter::create(&path, RecordOptions::default()).expect("create");
+    let s = w.add_channel(service::SENSOR, &SensorSample::KIND).expect("channel");
+    let e = w.write_sample(s, &valve(0)).expect_err("wrong type");
+    assert!(e.to_string().contains(service::SENSOR), "{e}");
+}

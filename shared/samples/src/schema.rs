@@ -1,0 +1,315 @@
+//! What a recorder needs to know of each sample type: its iceoryx2 type
+//! name, and a `ros2msg` schema describing its `#[repr(C)]` fields, so that
+//! Foxglove and PlotJuggler decode a recorded sample by reflection, with no
+//! plugin. A sample is recorded as [`CDR_HEADER`] followed by its own bytes:
+//! fields ordered largest first sit exactly where little-endian CDR puts
+//! them, so the sample's memory *is* its CDR encoding.
+//!
+//! Every sample's first field is a `u64` sequence number, so a recording's
+//! gaps are read from any channel the same way.
+
+use std::fmt::Debug;
+use std::mem::size_of;
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::{
+    BenchSample, FrictionSample, PlantReading, PositionSample, RecorderStatus, SensorSample, SupervisorStatus,
+    TorqueSample, ValveSample,
+};
+
+#[cfg(not(target_endian = "little"))]
+compile_error!("samples are recorded as little-endian CDR: their memory must be little-endian");
+
+/// CDR encapsulation header: plain CDR, little-endian, no options.
+pub const CDR_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+
+/// One sample type, described for recording.
+#[derive(Debug, PartialEq, Eq)]
+pub struct SampleKind {
+    /// The type name iceoryx2 keeps in the service's static config.
+    pub type_name: &'static str,
+    /// The ROS 2 style name of the schema, `package/msg/Type`.
+    pub schema_name: &'static str,
+    /// The `ros2msg` definition, with its nested messages after separators.
+    pub ros2msg: &'static str,
+    /// `size_of` the type: the bytes after the CDR header.
+    pub size: usize,
+    /// Where the sample's own timestamp (CLOCK_MONOTONIC ns) sits: its
+    /// stage's time, or the reading's for the plant.
+    pub time_offset: usize,
+}
+
+impl SampleKind {
+    /// The sequence number, the first field of every sample.
+    pub fn sequence(&self, bytes: &[u8]) -> Option<u64> {
+        self.u64_at(bytes, 0)
+    }
+
+    /// The sample's own timestamp, ns.
+    pub fn timestamp_ns(&self, bytes: &[u8]) -> Option<u64> {
+        self.u64_at(bytes, self.time_offset)
+    }
+
+    fn u64_at(&self, bytes: &[u8], offset: usize) -> Option<u64> {
+        if bytes.len() != self.size {
+            return None;
+        }
+        let field: [u8; 8] = bytes.get(offset..offset + 8)?.try_into().ok()?;
+        Some(u64::from_le_bytes(field))
+    }
+}
+
+/// A sample type that can be recorded and replayed.
+pub trait Recordable: ZeroCopySend + bytemuck::Pod + Debug + 'static {
+    const KIND: SampleKind;
+}
+
+/// Calls back with the type whose [`SampleKind::type_name`] is given: the one
+/// place where a type name read at run time becomes a Rust type.
+pub trait KindVisitor {
+    type Output;
+    fn visit<T: Recordable>(self) -> Self::Output;
+}
+
+/// Every recordable kind.
+pub const KINDS: [&SampleKind; 9] = [
+    &PlantReading::KIND,
+    &SensorSample::KIND,
+    &FrictionSample::KIND,
+    &PositionSample::KIND,
+    &TorqueSample::KIND,
+    &ValveSample::KIND,
+    &SupervisorStatus::KIND,
+    &RecorderStatus::KIND,
+    &BenchSample::KIND,
+];
+
+/// The stack's own services and what they carry: the recorder subscribes
+/// to these before their publishers exist, discovery finds the rest.
+pub const STACK_SERVICES: [(&str, &SampleKind); 8] = [
+    (crate::service::PLANT_READING, &PlantReading::KIND),
+    (crate::service::SENSOR, &SensorSample::KIND),
+    (crate::service::FRICTION, &FrictionSample::KIND),
+    (crate::service::POSITION, &PositionSample::KIND),
+    (crate::service::TORQUE, &TorqueSample::KIND),
+    (crate::service::VALVE, &ValveSample::KIND),
+    (crate::service::SUPERVISOR_STATUS, &SupervisorStatus::KIND),
+    (crate::service::RECORDER_STATUS, &RecorderStatus::KIND),
+];
+
+/// Visits the type named `type_name`; `None` for a type we do not know.
+pub fn visit_kind<V: KindVisitor>(type_name: &str, visitor: V) -> Option<V::Output> {
+    fn is<T: Recordable>(name: &str) -> bool {
+        T::KIND.type_name == name
+    }
+    Some(match type_name {
+        n if is::<PlantReading>(n) => visitor.visit::<PlantReading>(),
+        n if is::<SensorSample>(n) => visitor.visit::<SensorSample>(),
+        n if is::<FrictionSample>(n) => visitor.visit::<FrictionSample>(),
+        n if is::<PositionSample>(n) => visitor.visit::<PositionSample>(),
+        n if is::<TorqueSample>(n) => visitor.visit::<TorqueSample>(),
+        n if is::<ValveSample>(n) => visitor.visit::<ValveSample>(),
+        n if is::<SupervisorStatus>(n) => visitor.visit::<SupervisorStatus>(),
+        n if is::<RecorderStatus>(n) => visitor.visit::<RecorderStatus>(),
+        n if is::<BenchSample>(n) => visitor.visit::<BenchSample>(),
+        _ => return None,
+    })
+}
+
+macro_rules! recordable {
+    ($type:ty, $name:literal, $time:ident, $msg:expr) => {
+        impl Recordable for $type {
+            const KIND: SampleKind = SampleKind {
+                type_name: concat!("hydractl::", $name),
+                schema_name: concat!("hydractl/msg/", $name),
+                ros2msg: $msg,
+                size: size_of::<$type>(),
+                time_offset: std::mem::offset_of!($type, $time),
+            };
+        }
+    };
+}
+
+recordable!(
+    PlantReading,
+    "PlantReading",
+    sensor_time_ns,
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 true_angle\nuint64 late_commands\n"
+);
+recordable!(
+    SensorSample,
+    "SensorSample",
+    stage_time_ns,
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 angle\nfloat64 velocity\nfloat64 p_a\nfloat64 p_b\nfloat64 torque\nuint32 valid\nuint32 reserved\n"
+);
+recordable!(
+    FrictionSample,
+    "FrictionSample",
+    stage_time_ns,
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 compensation\nfloat64 blended_velocity\n"
+);
+recordable!(
+    PositionSample,
+    "PositionSample",
+    stage_time_ns,
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 reference_angle\nfloat64 reference_velocity\nfloat64 reference_acceleration\nfloat64 angle\nfloat64 output\nuint32 structure\nuint32 variant\n"
+);
+recordable!(
+    TorqueSample,
+    "TorqueSample",
+    stage_time_ns,
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 torque_reference\nfloat64 torque\nfloat64 command\nuint32 variant\nuint32 reserved\n"
+);
+recordable!(
+    ValveSample,
+    "ValveSample",
+    stage_time_ns,
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 command\nfloat64 requested\nuint32 faults\nuint32 reserved\n"
+);
+recordable!(
+    SupervisorStatus,
+    "SupervisorStatus",
+    stage_time_ns,
+    "uint64 seq\nuint64 stage_time_ns\nProcessStatus[12] processes\nuint32 process_count\nuint32 plant_is_simulation\n\
+================================================================================\n\
+MSG: hydractl/ProcessStatus\n\
+uint8[16] name\nuint8[16] variant\nuint32 pid\nuint32 restarts\nuint32 healthy\nuint32 reserved\n"
+);
+recordable!(
+    RecorderStatus,
+    "RecorderStatus",
+    stage_time_ns,
+    "uint64 seq\nuint64 stage_time_ns\nuint64 messages\nuint64 dropped\nuint64 gaps\nuint64 bytes\nuint32 files\nuint32 channels\n"
+);
+recordable!(
+    BenchSample,
+    "BenchSample",
+    stamps_ns,
+    "uint64 seq\nuint64[6] stamps_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 velocity\nfloat64 torque\nfloat64 friction\nfloat64 reference_velocity\nfloat64 output\nfloat64 command\n"
+);
+
+#[cfg(test)]
+mod tests {
+    use std::collections::HashMap;
+
+    use super::*;
+
+    /// The little-endian CDR layout of a ros2msg definition: the size of
+    /// each primitive, aligned to itself; nested messages inline.
+    fn cdr_size(msg: &str) -> (usize, Vec<(String, usize)>) {
+        let mut sections =
+            msg.split("================================================================================\n");
+        let main = sections.next().unwrap_or_default();
+        let mut nested = HashMap::new();
+        for section in sections {
+            let (header, body) = section.split_once('\n').expect("a nested message has a header");
+            let name = header.strip_prefix("MSG: hydractl/").expect("MSG: header");
+            nested.insert(name.to_owned(), body.to_owned());
+        }
+        let mut fields = Vec::new();
+        let offset = layout(main, &nested, 0, &mut fields);
+        (offset, fields)
+    }
+
+    fn layout(
+        body: &str,
+        nested: &HashMap<String, String>,
+        mut offset: usize,
+        fields: &mut Vec<(String, usize)>,
+    ) -> usize {
+        for line in body.lines().filter(|l| !l.trim().is_empty()) {
+            let (ty, name) = line.split_once(' ').expect("type and name");
+            let (base, count) = match ty.split_once('[') {
+                Some((b, n)) => (b, n.trim_end_matches(']').parse::<usize>().expect("a fixed array")),
+                None => (ty, 1),
+            };
+            let primitive = match base {
+                "uint8" => Some(1),
+                "uint32" => Some(4),
+                "uint64" | "float64" => Some(8),
+                _ => None,
+            };
+            match primitive {
+                Some(size) => {
+                    offset = offset.div_ceil(size) * size;
+                    fields.push((name.to_owned(), offset));
+                    offset += size * count;
+                }
+                None => {
+                    let inner = nested.get(base).expect("nested message defined");
+                    fields.push((name.to_owned(), offset));
+                    for _ in 0..count {
+                        offset = layout(inner, nested, offset, &mut Vec::new());
+                    }
+                }
+            }
+        }
+        offset
+    }
+
+    #[test]
+    fn every_schema_matches_its_type_layout_and_starts_with_a_sequence() {
+        for kind in KINDS {
+            let (size, fields) = cdr_size(kind.ros2msg);
+            assert_eq!(size, kind.size, "{}: CDR size against size_of", kind.schema_name);
+            let (first, offset) = &fields[0];
+            assert!(first.ends_with("seq") && *offset == 0, "{}", kind.schema_name);
+            assert!(kind.ros2msg.starts_with("uint64 "), "{}", kind.schema_name);
+        }
+    }
+
+    #[test]
+    fn schema_offsets_are_the_struct_offsets() {
+        let (_, fields) = cdr_size(SensorSample::KIND.ros2msg);
+        let at = |name: &str| fields.iter().find(|(n, _)| n == name).map(|(_, o)| *o);
+        assert_eq!(at("torque"), Some(std::mem::offset_of!(SensorSample, torque)));
+        assert_eq!(at("valid"), Some(std::mem::offset_of!(SensorSample, valid)));
+        let (_, fields) = cdr_size(SupervisorStatus::KIND.ros2msg);
+        let at = |name: &str| fields.iter().find(|(n, _)| n == name).map(|(_, o)| *o);
+        assert_eq!(
+            at("process_count"),
+            Some(std::mem::offset_of!(SupervisorStatus, process_count))
+        );
+    }
+
+    struct NameOf;
+    impl KindVisitor for NameOf {
+        type Output = &'static str;
+        fn visit<T: Recordable>(self) -> &'static str {
+            T::KIND.schema_name
+        }
+    }
+
+    #[test]
+    fn sequence_and_timestamp_are_read_from_the_bytes() {
+        let v = ValveSample {
+            sensor_seq: 41,
+            stage_time_ns: 1234,
+            ..ValveSample::default()
+        };
+        let bytes = bytemuck::bytes_of(&v);
+        assert_eq!(ValveSample::KIND.sequence(bytes), Some(41));
+        assert_eq!(ValveSample::KIND.timestamp_ns(bytes), Some(1234));
+        assert_eq!(ValveSample::KIND.sequence(&bytes[..8]), None);
+    }
+
+    #[test]
+    fn type_names_visit_their_types() {
+        for kind in KINDS {
+            assert_eq!(visit_kind(kind.type_name, NameOf), Some(kind.schema_name));
+        }
+        assert_eq!(visit_kind("hydractl::Unknown", NameOf), None);
+    }
+
+    #[test]
+    #[allow(unsafe_code)]
+    fn type_names_are_the_ones_iceoryx2_keeps() {
+        use iceoryx2_bb_elementary_traits::type_name::TypeName;
+        // SAFETY: type_name only returns the derive's string.
+        let ice = unsafe { <SensorSample as TypeName>::type_name() };
+        assert_eq!(ice, SensorSample::KIND.type_name);
+        let ice = unsafe { <SupervisorStatus as TypeName>::type_name() };
+        assert_eq!(ice, SupervisorStatus::KIND.type_name);
+    }
+}

@@ -1,0 +1,455 @@
+//! Recording the live stack to MCAP: nothing lost, a killed recorder's
+//! file still readable, attaching to a running stack, and a process run
+//! again on recorded data.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use hydractl_bus::{Bus, Reader, PREFIX_ENV};
+use hydractl_recording::{decode, read_messages, summarize, RecordingSummary};
+use hydractl_samples::{
+    name_str, service, PlantReading, PositionSample, RecorderStatus, SensorSample, SupervisorStatus, ValveSample,
+};
+use hydractl_system_tests::*;
+use nix::sys::signal::Signal;
+
+const PIPELINE: [&str; 6] = [
+    service::PLANT_READING,
+    service::SENSOR,
+    service::FRICTION,
+    service::POSITION,
+    service::TORQUE,
+    service::VALVE,
+];
+
+fn channel<'a>(summary: &'a RecordingSummary, topic: &str) -> &'a hydractl_recording::ChannelSummary {
+    summary
+        .channels
+        .iter()
+        .find(|c| c.topic == topic)
+        .unwrap_or_else(|| panic!("no channel {topic} in {summary:?}"))
+}
+
+/// The last sample of each kind, as the Rust reader decodes it, in the
+/// field names of the schema.
+fn last_samples(path: &Path) -> BTreeMap<String, serde_json::Value> {
+    let mut last = BTreeMap::new();
+    read_messages(path, |m| {
+        let value = if let Some(v) = decode::<ValveSample>(m) {
+            serde_json::json!({"sensor_seq": v.sensor_seq, "command": v.command, "faults": v.faults})
+        } else if let Some(s) = decode::<SensorSample>(m) {
+            serde_json::json!({"sensor_seq": s.sensor_seq, "angle": s.angle, "p_a": s.p_a, "torque": s.torque, "valid": s.valid})
+        } else if let Some(p) = decode::<PositionSample>(m) {
+            serde_json::json!({"sensor_seq": p.sensor_seq, "reference_angle": p.reference_angle, "output": p.output, "variant": p.variant})
+        } else if let Some(p) = decode::<PlantReading>(m) {
+            serde_json::json!({"sensor_seq": p.sensor_seq, "p_b": p.p_b, "true_angle": p.true_angle})
+        } else if let Some(r) = decode::<RecorderStatus>(m) {
+            serde_json::json!({"seq": r.seq, "messages": r.messages, "dropped": r.dropped, "gaps": r.gaps})
+        } else if let Some(s) = decode::<SupervisorStatus>(m) {
+            let names: Vec<&str> = s.processes[..s.process_count as usize]
+                .iter()
+                .map(|p| name_str(&p.name))
+                .collect();
+            serde_json::json!({"seq": s.seq, "process_count": s.process_count, "names": names})
+        } else {
+            return Ok(());
+        };
+        last.insert(m.topic.to_owned(), value);
+        Ok(())
+    })
+    .expect("read");
+    last
+}
+
+/// Reads the recording with the Python `mcap` package and its ROS 2
+/// decoder. `None` when they are not installed and not required.
+fn python_view(path: &Path) -> Option<serde_json::Value> {
+    let python = std::env::var("HYDRACTL_PYTHON").unwrap_or_else(|_| "python3".into());
+    let required = std::env::var("HYDRACTL_REQUIRE_PYTHON_MCAP").is_ok_and(|v| v == "1");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/check_recording.py");
+    let out = Command::new(&python).arg(&script).arg(path).output();
+    match out {
+        Ok(out) if out.status.success() => Some(serde_json::from_slice(&out.stdout).expect("python json")),
+        other => {
+            let why = match other {
+                Ok(out) => String::from_utf8_lossy(&out.stderr).into_owned(),
+                Err(e) => e.to_string(),
+            };
+            assert!(!required, "the Python mcap reader failed: {why}");
+            eprintln!("SKIPPED the Python reader check (install mcap and mcap-ros2-support, as .ci/run does): {why}");
+            None
+        }
+    }
+}
+
+/// Takes the next waiting sample's sequence number.
+type NextSeq = Box<dyn Fn() -> Option<u64>>;
+
+/// The sequence numbers an independent subscriber sees on each pipeline
+/// service: what was published, to compare the recording with.
+struct Witness {
+    readers: Vec<(&'static str, NextSeq)>,
+    seen: BTreeMap<&'static str, std::collections::BTreeSet<u64>>,
+    _bus: Bus,
+}
+
+impl Witness {
+    fn open(scope: &hydractl_bus::RunScope) -> Self {
+        fn reader<T: hydractl_samples::Recordable>(bus: &Bus, name: &'static str) -> NextSeq {
+            let r: Reader<T> = Reader::open(bus, name, 256).expect("reader");
+            Box::new(move || {
+                r.next()
+                    .expect("receive")
+                    .and_then(|s| T::KIND.sequence(bytemuck::bytes_of(&s)))
+            })
+        }
+        let bus = Bus::open(scope, "witness").expect("node");
+        let readers = vec![
+            (
+                service::PLANT_READING,
+                reader::<PlantReading>(&bus, service::PLANT_READING),
+            ),
+            (service::SENSOR, reader::<SensorSample>(&bus, service::SENSOR)),
+            (
+                service::FRICTION,
+                reader::<hydractl_samples::FrictionSample>(&bus, service::FRICTION),
+            ),
+            (service::POSITION, reader::<PositionSample>(&bus, service::POSITION)),
+            (
+                service::TORQUE,
+                reader::<hydractl_samples::TorqueSample>(&bus, service::TORQUE),
+            ),
+            (service::VALVE, reader::<ValveSample>(&bus, service::VALVE)),
+        ];
+        Self {
+            readers,
+            seen: BTreeMap::new(),
+            _bus: bus,
+        }
+    }
+
+    fn poll(&mut self) {
+        for (name, next) in &self.readers {
+            while let Some(seq) = next() {
+                self.seen.entry(name).or_default().insert(seq);
+            }
+        }
+    }
+}
+
+#[test]
+fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
+    let _turn = serial();
+    let scope = unique_scope("rec10");
+    let dir = scratch_dir("rec10");
+    let (file, summary_path) = (dir.join("run.mcap"), dir.join("summary.json"));
+    let mut witness = Witness::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &[
+            "--duration",
+            "10",
+            "--record",
+            file.to_str().expect("path"),
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+    );
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while run.0.try_wait().expect("wait").is_none() {
+        assert!(Instant::now() < deadline, "the run ends");
+        witness.poll();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    witness.poll();
+    assert!(wait_exit(&mut run.0, Duration::from_secs(1)).success());
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary_path).expect("summary")).expect("json");
+    let cycles = run["cycles"].as_u64().expect("cycles");
+    assert!(cycles >= 9_500, "{run}");
+    assert!(run["processes"]
+        .as_array()
+        .expect("processes")
+        .iter()
+        .any(|p| p["name"] == "recorder"));
+    assert_eq!(run["recording"]["files"][0], file.to_str().expect("path"));
+    assert_eq!(run["recording"]["dropped"], 0, "{run}");
+
+    // Every sample the witness saw published is in the recording, and the
+    // recording holds nothing else.
+    let mut recorded: BTreeMap<String, std::collections::BTreeSet<u64>> = BTreeMap::new();
+    read_messages(&file, |m| {
+        recorded
+            .entry(m.topic.to_owned())
+            .or_default()
+            .insert(m.kind.sequence(m.payload).expect("seq"));
+        Ok(())
+    })
+    .expect("read");
+    for (topic, seen) in &witness.seen {
+        let held = &recorded[*topic];
+        assert!(seen.len() as u64 >= cycles, "{topic}: the witness saw {}", seen.len());
+        let lost: Vec<&u64> = seen.difference(held).collect();
+        let extra: Vec<&u64> = held
+            .range(seen.first().copied().unwrap_or(0)..)
+            .filter(|s| !seen.contains(s))
+            .collect();
+        assert!(lost.is_empty(), "{topic}: published but not recorded: {lost:?}");
+        assert!(
+            extra.is_empty(),
+            "{topic}: recorded but never seen published: {extra:?}"
+        );
+    }
+    drop(witness);
+
+    let summary = summarize(&file).expect("the recording reads");
+    assert_eq!(summary.truncated, None);
+    for topic in PIPELINE {
+        let c = channel(&summary, topic);
+        assert!(
+            c.messages >= cycles,
+            "{topic}: {} recorded, {cycles} cycles",
+            c.messages
+        );
+    }
+    // Subscribed before the plant existed: its very first reading is there.
+    assert_eq!(channel(&summary, service::PLANT_READING).first_seq, 0);
+    for topic in [service::SUPERVISOR_STATUS, service::RECORDER_STATUS] {
+        assert_eq!(channel(&summary, topic).missing, 0);
+    }
+    assert!(summary.metadata.get("config").is_some_and(|c| c.contains("[timing]")));
+    assert!(summary
+        .metadata
+        .get("software")
+        .is_some_and(|s| s.starts_with("hydractl ")));
+    let last = last_samples(&file);
+    assert_eq!(last[service::RECORDER_STATUS]["dropped"], 0);
+    let names = &last[service::SUPERVISOR_STATUS]["names"];
+    for name in [
+        "plant",
+        "sensor",
+        "friction",
+        "position",
+        "torque",
+        "valve",
+        "recorder",
+        "supervisor",
+    ] {
+        assert!(
+            names.as_array().expect("names").iter().any(|n| n == name),
+            "{name} in {names}"
+        );
+    }
+
+    // The model tools read the recording directly, or as the CSV it exports.
+    let csv = dir.join("run.csv");
+    let export = hydractl()
+        .args(["mcap", "export-csv"])
+        .arg(&file)
+        .arg("--out")
+        .arg(&csv)
+        .output()
+        .expect("export");
+    assert!(export.status.success(), "{}", String::from_utf8_lossy(&export.stderr));
+    let text = std::fs::read_to_string(&csv).expect("csv");
+    assert!(text.starts_with("t,u,p_a,p_b,theta,theta_ref\n"));
+    assert!(text.lines().count() as u64 >= cycles);
+    let fit = hydractl()
+        .args(["model", "fit", "--data"])
+        .arg(&file)
+        .arg("--out")
+        .arg(dir.join("model.toml"))
+        .output()
+        .expect("fit");
+    assert!(fit.status.success(), "{}", String::from_utf8_lossy(&fit.stderr));
+
+    if let Some(python) = python_view(&file) {
+        for c in &summary.channels {
+            let seen = &python[&c.topic];
+            assert_eq!(seen["count"].as_u64(), Some(c.messages), "{}", c.topic);
+            assert_eq!(seen["schema"], c.schema.as_str());
+            assert_eq!(seen["encoding"], "cdr");
+        }
+        for (topic, fields) in &last {
+            let decoded = &python[topic]["last"];
+            for (key, value) in fields.as_object().expect("fields") {
+                if key == "names" {
+                    let python_names: Vec<String> = decoded["processes"]
+                        .as_array()
+                        .expect("processes")
+                        .iter()
+                        .take(decoded["process_count"].as_u64().expect("count") as usize)
+                        .map(|p| {
+                            let bytes: Vec<u8> = p["name"]
+                                .as_array()
+                                .expect("name bytes")
+                                .iter()
+                                .filter_map(|b| b.as_u64().map(|b| b as u8))
+                                .collect();
+                            name_str(&bytes).to_owned()
+                        })
+                        .collect();
+                    assert_eq!(serde_json::json!(python_names), *value, "{topic}");
+                } else if let (Some(a), Some(b)) = (decoded[key].as_f64(), value.as_f64()) {
+                    // serde_json parses the last digit of a float loosely.
+                    assert!(
+                        (a - b).abs() <= 4.0 * f64::EPSILON * a.abs(),
+                        "{topic}.{key}: {a} vs {b}"
+                    );
+                } else {
+                    assert_eq!(decoded[key], *value, "{topic}.{key}");
+                }
+            }
+        }
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_killed_recorder_leaves_a_readable_file_and_is_restarted_into_a_new_one() {
+    let _turn = serial();
+    let scope = unique_scope("reckill");
+    let dir = scratch_dir("reckill");
+    let file = dir.join("run.mcap");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(&scope, &["--duration", "30", "--record", file.to_str().expect("path")]);
+    assert!(observer.wait_healthy(500, Duration::from_secs(20)), "the loop runs");
+    std::thread::sleep(Duration::from_millis(2500));
+    let pid = observer
+        .pid_of("recorder", Duration::from_secs(2))
+        .expect("recorder pid");
+    signal(pid, Signal::SIGKILL);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let mut restarted = None;
+    while restarted.is_none() && Instant::now() < deadline {
+        restarted = observer
+            .pid_of("recorder", Duration::from_millis(200))
+            .filter(|&p| p != pid);
+    }
+    assert!(restarted.is_some(), "the recorder is restarted");
+    std::thread::sleep(Duration::from_millis(1500));
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+
+    let cut = summarize(&file).expect("a killed recorder's file reads");
+    assert!(cut.truncated.is_some(), "{cut:?}");
+    // Chunks close every second: at least the first two seconds survive.
+    assert!(channel(&cut, service::VALVE).messages >= 1_500, "{cut:?}");
+    let info = hydractl().args(["mcap", "info"]).arg(&file).output().expect("info");
+    assert!(info.status.success());
+    assert!(String::from_utf8_lossy(&info.stdout).contains("cut short"));
+
+    let second = summarize(&dir.join("run_restart1.mcap")).expect("the restarted recorder's file");
+    assert_eq!(second.truncated, None);
+    assert!(channel(&second, service::VALVE).messages >= 500, "{second:?}");
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn record_attaches_to_a_running_stack_and_replay_drives_a_process_with_it() {
+    let _turn = serial();
+    let scope = unique_scope("recattach");
+    let dir = scratch_dir("recattach");
+    let file = dir.join("attached.mcap");
+    {
+        let observer = Observer::open(&scope);
+        let _run = start_run(&scope, &["--duration", "30"]);
+        assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+        let out = hydractl()
+            .args(["record", file.to_str().expect("path"), "--duration", "2"])
+            .env(PREFIX_ENV, scope.prefix())
+            .output()
+            .expect("record runs");
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+    let recorded = summarize(&file).expect("recording");
+    assert_eq!(recorded.truncated, None);
+    let valve = channel(&recorded, service::VALVE);
+    assert!((1_700..=2_300).contains(&valve.messages), "{valve:?}");
+
+    // The sensor process alone, in a scope of its own, fed the recorded
+    // plant readings: it computes again what it computed live.
+    let replay_scope = unique_scope("recreplay");
+    let bus = Bus::open(&replay_scope, "observer").expect("node");
+    let outputs: Reader<SensorSample> = Reader::open(&bus, service::SENSOR, 256).expect("reader");
+    let mut sensor = Command::new(binary_dir().join("sensor"))
+        .env(PREFIX_ENV, replay_scope.prefix())
+        .spawn()
+        .expect("sensor starts");
+    std::thread::sleep(Duration::from_millis(300));
+    let mut replay = hydractl()
+        .args([
+            "replay",
+            file.to_str().expect("path"),
+            "--speed",
+            "1",
+            "--topics",
+            service::PLANT_READING,
+        ])
+        .env(PREFIX_ENV, replay_scope.prefix())
+        .spawn()
+        .expect("replay starts");
+    let mut replayed: BTreeMap<u64, SensorSample> = BTreeMap::new();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut replay_done = None;
+    while Instant::now() < deadline && replay_done.is_none_or(|at: Instant| at.elapsed() < Duration::from_millis(100)) {
+        while let Ok(Some(s)) = outputs.next() {
+            replayed.insert(s.sensor_seq, s);
+        }
+        if replay_done.is_none() && replay.try_wait().expect("wait").is_some() {
+            replay_done = Some(Instant::now());
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(wait_exit(&mut replay, Duration::from_secs(1)).success());
+    signal(sensor.id(), Signal::SIGTERM);
+    wait_exit(&mut sensor, Duration::from_secs(5));
+
+    let mut live: BTreeMap<u64, SensorSample> = BTreeMap::new();
+    read_messages(&file, |m| {
+        if let Some(s) = decode::<SensorSample>(m) {
+            live.insert(s.sensor_seq, s);
+        }
+        Ok(())
+    })
+    .expect("read");
+    let matched: Vec<(&SensorSample, &SensorSample)> = live
+        .iter()
+        .filter_map(|(seq, l)| replayed.get(seq).map(|r| (l, r)))
+        .collect();
+    // A stage takes the newest reading when it wakes: under load it may
+    // skip one, as it does live.
+    assert!(
+        matched.len() * 100 >= live.len() * 99,
+        "{} replayed of {}",
+        matched.len(),
+        live.len()
+    );
+    for (l, r) in &matched {
+        assert_eq!(
+            (l.angle, l.p_a, l.p_b, l.torque, l.valid),
+            (r.angle, r.p_a, r.p_b, r.torque, r.valid)
+        );
+        // The live sample's timestamps are the reading's; so are the replayed.
+        assert_eq!(l.sensor_time_ns, r.sensor_time_ns);
+    }
+    // The velocity estimate starts from rest in the new process; once its
+    // filter has forgotten that, it is the live estimate.
+    // A reading skipped (live or replayed) disturbs it for a while too.
+    let settled = &matched[matched.len() / 2..];
+    let same = settled
+        .iter()
+        .filter(|(l, r)| (l.velocity - r.velocity).abs() <= 1e-9 + 1e-6 * l.velocity.abs())
+        .count();
+    assert!(
+        same * 100 >= settled.len() * 90,
+        "{same} of {} velocity estimates reproduced",
+        settled.len()
+    );
+    drop(outputs);
+    drop(bus);
+    std::fs::remove_dir_all(dir).ok();
+}

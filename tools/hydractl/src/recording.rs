@@ -1,0 +1,305 @@
+//! `hydractl record`, `replay`, `mcap info`, `mcap export-csv`, and the
+//! model tools' reading of a recording.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use hydractl_bus::{quiet_ipc_logging, Bus, RunScope, PREFIX_ENV};
+use hydractl_ident::Dataset;
+use hydractl_processes::recording::{republisher, Republisher};
+use hydractl_recording::{export_rows, read_messages, summarize, write_csv, MODEL_COLUMNS};
+
+#[derive(clap::Args)]
+pub struct RecordArgs {
+    /// The MCAP file to write.
+    file: PathBuf,
+    /// Seconds to record; without it, until Ctrl-C or the run stops.
+    #[arg(long)]
+    duration: Option<f64>,
+    /// The run's config, kept in the recording's metadata [default: the built-in config/sim.toml].
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[command(flatten)]
+    split: SplitArgs,
+}
+
+/// How a recording is split into parts `STEM_000.mcap`, `STEM_001.mcap`, ….
+#[derive(clap::Args, Clone, Default)]
+pub struct SplitArgs {
+    /// Start a new file every this many MB.
+    #[arg(long)]
+    pub split_size_mb: Option<f64>,
+    /// Start a new file every this many seconds.
+    #[arg(long)]
+    pub split_duration_s: Option<f64>,
+}
+
+impl SplitArgs {
+    /// The recorder's arguments for writing to `out`.
+    pub fn recorder_args(&self, out: &Path) -> Result<Vec<String>> {
+        for (flag, value) in [
+            ("--split-size-mb", self.split_size_mb),
+            ("--split-duration-s", self.split_duration_s),
+        ] {
+            if value.is_some_and(|v| !(v.is_finite() && v > 0.0)) {
+                bail!("{flag} must be a positive number");
+            }
+        }
+        Ok(hydractl_processes::RecordArgs {
+            out: Some(out.to_path_buf()),
+            split_size_mb: self.split_size_mb,
+            split_duration_s: self.split_duration_s,
+        }
+        .to_args(out))
+    }
+}
+
+#[derive(clap::Args)]
+pub struct ReplayArgs {
+    /// The MCAP file to replay.
+    file: PathBuf,
+    /// Playback speed: 1 is as recorded, 2 twice as fast.
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Only these services (comma-separated) [default: every one recorded].
+    #[arg(long, value_delimiter = ',')]
+    topics: Vec<String>,
+}
+
+#[derive(clap::Subcommand)]
+pub enum McapCommand {
+    /// Summarize a recording: channels, schemas, counts, rates, gaps, metadata.
+    Info {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write the columns the model tools read: t,u,p_a,p_b,theta,theta_ref.
+    ExportCsv {
+        file: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// Attaches a recorder to the run already alive under this prefix.
+pub fn record(args: RecordArgs) -> Result<()> {
+    if args.duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
+        bail!("--duration must be a positive number of seconds");
+    }
+    quiet_ipc_logging();
+    let scope = RunScope::from_env()?;
+    let bus = Bus::open(&scope, "record")?;
+    if !run_alive(&scope)? {
+        bail!(
+            "no run with prefix `{}` is alive: start one with `hydractl run` (or set {PREFIX_ENV})",
+            scope.prefix()
+        );
+    }
+    let binary = hydractl_bus::binary_dir()?.join("recorder");
+    let mut command = Command::new(&binary);
+    if let Some(config) = &args.config {
+        command.arg("--config").arg(config);
+    }
+    let mut recorder = command
+        .args(args.split.recorder_args(&args.file)?)
+        .env(PREFIX_ENV, scope.prefix())
+        .stdin(Stdio::null())
+        .spawn()
+        .with_context(|| format!("starting {}", binary.display()))?;
+    let started = Instant::now();
+    let mut last_check = Instant::now();
+    loop {
+        std::thread::sleep(Duration::from_millis(20));
+        if recorder.try_wait()?.is_some() {
+            bail!("the recorder stopped by itself; see its message above");
+        }
+        if bus.termination_requested() || args.duration.is_some_and(|d| started.elapsed().as_secs_f64() >= d) {
+            break;
+        }
+        if last_check.elapsed() >= Duration::from_millis(500) {
+            last_check = Instant::now();
+            if !run_alive(&scope)? {
+                eprintln!("the run stopped; finishing the recording");
+                break;
+            }
+        }
+    }
+    crate::run::stop_child(&mut recorder, "the recorder", Duration::from_secs(10))?;
+    crate::emit(&format!(
+        "recorded {:.1} s to {}\n",
+        started.elapsed().as_secs_f64(),
+        args.file.display()
+    ))
+}
+
+fn run_alive(scope: &RunScope) -> Result<bool> {
+    Ok(scope.live_node_names()?.iter().any(|n| n == "supervisor"))
+}
+
+/// Republishes a recording's samples on their services, paced by their
+/// log times.
+pub fn replay(args: ReplayArgs) -> Result<()> {
+    if !(args.speed.is_finite() && args.speed > 0.0) {
+        bail!("--speed must be a positive number, got {}", args.speed);
+    }
+    struct Entry {
+        channel: usize,
+        log_time_ns: u64,
+        payload: Vec<u8>,
+    }
+    let mut topics: Vec<(String, &'static str)> = Vec::new();
+    let mut entries = Vec::new();
+    let outcome = read_messages(&args.file, |m| {
+        if !args.topics.is_empty() && !args.topics.iter().any(|t| t == m.topic) {
+            return Ok(());
+        }
+        let channel = match topics.iter().position(|(t, _)| t == m.topic) {
+            Some(i) => i,
+            None => {
+                topics.push((m.topic.to_owned(), m.kind.type_name));
+                topics.len() - 1
+            }
+        };
+        entries.push(Entry {
+            channel,
+            log_time_ns: m.log_time_ns,
+            payload: m.payload.to_vec(),
+        });
+        Ok(())
+    })?;
+    if let Some(why) = &outcome.truncated {
+        eprintln!("{}: {why}", args.file.display());
+    }
+    for wanted in &args.topics {
+        if !topics.iter().any(|(t, _)| t == wanted) {
+            bail!("{}: no channel `{wanted}` to replay", args.file.display());
+        }
+    }
+    // Files are ordered by chunk; playback is by log time.
+    entries.sort_by_key(|e| e.log_time_ns);
+    quiet_ipc_logging();
+    let scope = RunScope::from_env()?;
+    let bus = Bus::open(&scope, "replay")?;
+    let outlets: Vec<Box<dyn Republisher>> = topics
+        .iter()
+        .map(|(topic, type_name)| {
+            republisher(&bus, topic, type_name)
+                .with_context(|| format!("no sample type for {topic}"))?
+                .with_context(|| format!("publishing on {topic}"))
+        })
+        .collect::<Result<_>>()?;
+    let Some(first) = entries.first().map(|e| e.log_time_ns) else {
+        return crate::emit("nothing to replay\n");
+    };
+    let started = Instant::now();
+    let mut published = 0u64;
+    for entry in &entries {
+        let due = Duration::from_secs_f64(entry.log_time_ns.saturating_sub(first) as f64 * 1e-9 / args.speed);
+        let wait = due.saturating_sub(started.elapsed());
+        if !wait.is_zero() && bus.node().wait(wait).is_err() {
+            break;
+        }
+        outlets[entry.channel].publish(&entry.payload)?;
+        published += 1;
+    }
+    crate::emit(&format!(
+        "replayed {published} messages on {} services in {:.2} s (prefix `{}`)\n",
+        topics.len(),
+        started.elapsed().as_secs_f64(),
+        scope.prefix()
+    ))
+}
+
+pub fn mcap(command: McapCommand) -> Result<()> {
+    match command {
+        McapCommand::Info { file, json } => {
+            let summary = summarize(&file)?;
+            if json {
+                return crate::emit(&(serde_json::to_string_pretty(&summary)? + "\n"));
+            }
+            let mut text = format!(
+                "{}: {} messages, {:.3} s, {} bytes{}\n",
+                summary.path,
+                summary.messages,
+                summary.duration_s,
+                summary.bytes,
+                summary
+                    .truncated
+                    .as_deref()
+                    .map(|t| format!("\n  cut short: {t}"))
+                    .unwrap_or_default()
+            );
+            for (key, value) in &summary.metadata {
+                let first_line = value.lines().next().unwrap_or_default();
+                let more = if value.lines().count() > 1 { " …" } else { "" };
+                text += &format!("  metadata {key}: {first_line}{more}\n");
+            }
+            text += &format!(
+                "  {:<32} {:<32} {:>9} {:>9} {:>8}\n",
+                "channel", "schema", "messages", "rate Hz", "missing"
+            );
+            for c in &summary.channels {
+                text += &format!(
+                    "  {:<32} {:<32} {:>9} {:>9.1} {:>8}\n",
+                    c.topic, c.schema, c.messages, c.rate_hz, c.missing
+                );
+            }
+            crate::emit(&text)
+        }
+        McapCommand::ExportCsv { file, out } => {
+            let export = exported(&file)?;
+            write_csv(&export.rows, &out)?;
+            crate::emit(&format!(
+                "{} rows of {} to {}\n",
+                export.rows.len(),
+                MODEL_COLUMNS.join(","),
+                out.display()
+            ))
+        }
+    }
+}
+
+/// The model tools' rows of a recording, saying on stderr what was made up.
+fn exported(path: &Path) -> Result<hydractl_recording::Export> {
+    let export = export_rows(path)?;
+    if let Some(why) = &export.read.truncated {
+        eprintln!("{}: {why}", path.display());
+    }
+    if export.held > 0 {
+        eprintln!(
+            "{}: {} of {} readings have no recorded command or reference (the stage skipped them); the previous one is held",
+            path.display(),
+            export.held,
+            export.rows.len()
+        );
+    }
+    Ok(export)
+}
+
+/// Measured data for the model and identification tools: a CSV, or a
+/// recording (`.mcap`), read as the columns `mcap export-csv` writes.
+pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
+        let rows = exported(path)?.rows;
+        let column = |f: fn(&hydractl_recording::ModelRow) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
+        let data = Dataset::from_columns(
+            &path.display().to_string(),
+            vec![
+                ("t", column(|r| r.t)),
+                ("u", column(|r| r.u)),
+                ("p_a", column(|r| r.p_a)),
+                ("p_b", column(|r| r.p_b)),
+                ("theta", column(|r| r.theta)),
+                ("theta_ref", column(|r| r.theta_ref)),
+            ],
+        );
+        for name in required {
+            data.column(name)?;
+        }
+        return Ok(data);
+    }
+    Ok(Dataset::from_csv(path, required)?)
+}
