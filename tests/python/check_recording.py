@@ -1,11 +1,18 @@
 """Reads a hydractl recording with the independent Python `mcap` reader
 and its ROS 2 decoder, and prints, per channel, the schema, the message
-count and the last message's decoded fields as JSON."""
+count and the last message's decoded fields as JSON.
+
+With `--stream`, reads record by record without the summary, as a reader
+must for a file a killed recorder left, and prints the message count per
+channel up to where the file stops."""
 
 import json
 import sys
 
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
 
@@ -34,5 +41,26 @@ def main(path):
     json.dump(channels, sys.stdout)
 
 
+def stream(path):
+    topics, channels = {}, {}
+    cut_short = False
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f).records:
+                if isinstance(record, Channel):
+                    topics[record.id] = record.topic
+                elif isinstance(record, Message):
+                    entry = channels.setdefault(topics[record.channel_id], {"count": 0})
+                    entry["count"] += 1
+        except McapError as error:
+            # The end of a killed writer's file: a record cut off, or the
+            # chunk being filled, whose length was never written.
+            cut_short = type(error).__name__
+    json.dump({"channels": channels, "cut_short": cut_short}, sys.stdout)
+
+
 if __name__ == "__main__":
-    main(sys.argv[1])
+    if sys.argv[1] == "--stream":
+        stream(sys.argv[2])
+    else:
+        main(sys.argv[1])

@@ -65,11 +65,11 @@ fn last_samples(path: &Path) -> BTreeMap<String, serde_json::Value> {
 
 /// Reads the recording with the Python `mcap` package and its ROS 2
 /// decoder. `None` when they are not installed and not required.
-fn python_view(path: &Path) -> Option<serde_json::Value> {
+fn python_view(args: &[&str], path: &Path) -> Option<serde_json::Value> {
     let python = std::env::var("HYDRACTL_PYTHON").unwrap_or_else(|_| "python3".into());
     let required = std::env::var("HYDRACTL_REQUIRE_PYTHON_MCAP").is_ok_and(|v| v == "1");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/check_recording.py");
-    let out = Command::new(&python).arg(&script).arg(path).output();
+    let out = Command::new(&python).arg(&script).args(args).arg(path).output();
     match out {
         Ok(out) if out.status.success() => Some(serde_json::from_slice(&out.stdout).expect("python json")),
         other => {
@@ -157,12 +157,36 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
             summary_path.to_str().expect("path"),
         ],
     );
-    let deadline = Instant::now() + Duration::from_secs(60);
+    // A service that appears mid-run, as a hot-swapped controller's does.
+    const LATE: &str = "hydractl/position/late";
+    let late_bus = Bus::open(&scope, "late").expect("node");
+    let mut late: Option<hydractl_bus::Outlet<PositionSample>> = None;
+    let mut late_published = 0u64;
+    let started = Instant::now();
+    let deadline = started + Duration::from_secs(60);
     while run.0.try_wait().expect("wait").is_none() {
         assert!(Instant::now() < deadline, "the run ends");
         witness.poll();
+        let elapsed = started.elapsed();
+        if late.is_none() && elapsed > Duration::from_secs(3) {
+            late = Some(hydractl_bus::Outlet::open(&late_bus, LATE).expect("late outlet"));
+        }
+        // Discovery runs every 200 ms: publish once the recorder has had time to find it.
+        if let Some(outlet) = &late {
+            if elapsed > Duration::from_secs(4) && late_published < 500 {
+                outlet
+                    .publish(PositionSample {
+                        sensor_seq: late_published,
+                        stage_time_ns: hydractl_bus::clock::now_ns(),
+                        ..PositionSample::default()
+                    })
+                    .expect("publish");
+                late_published += 1;
+            }
+        }
         std::thread::sleep(Duration::from_millis(2));
     }
+    drop(late);
     witness.poll();
     assert!(wait_exit(&mut run.0, Duration::from_secs(1)).success());
     let run: serde_json::Value =
@@ -214,6 +238,12 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
             c.messages
         );
     }
+    let late = channel(&summary, LATE);
+    assert_eq!(
+        (late.messages, late.first_seq, late.last_seq),
+        (500, 0, 499),
+        "{late:?}"
+    );
     // Subscribed before the plant existed: its very first reading is there.
     assert_eq!(channel(&summary, service::PLANT_READING).first_seq, 0);
     for topic in [service::SUPERVISOR_STATUS, service::RECORDER_STATUS] {
@@ -265,7 +295,7 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
         .expect("fit");
     assert!(fit.status.success(), "{}", String::from_utf8_lossy(&fit.stderr));
 
-    if let Some(python) = python_view(&file) {
+    if let Some(python) = python_view(&[], &file) {
         for c in &summary.channels {
             let seen = &python[&c.topic];
             assert_eq!(seen["count"].as_u64(), Some(c.messages), "{}", c.topic);
@@ -337,6 +367,17 @@ fn a_killed_recorder_leaves_a_readable_file_and_is_restarted_into_a_new_one() {
     assert!(cut.truncated.is_some(), "{cut:?}");
     // Chunks close every second: at least the first two seconds survive.
     assert!(channel(&cut, service::VALVE).messages >= 1_500, "{cut:?}");
+    if let Some(python) = python_view(&["--stream"], &file) {
+        assert!(python["cut_short"].is_string(), "{python}");
+        for c in &cut.channels {
+            assert_eq!(
+                python["channels"][&c.topic]["count"].as_u64(),
+                Some(c.messages),
+                "{}",
+                c.topic
+            );
+        }
+    }
     let info = hydractl().args(["mcap", "info"]).arg(&file).output().expect("info");
     assert!(info.status.success());
     assert!(String::from_utf8_lossy(&info.stdout).contains("cut short"));
@@ -436,19 +477,24 @@ fn record_attaches_to_a_running_stack_and_replay_drives_a_process_with_it() {
         // The live sample's timestamps are the reading's; so are the replayed.
         assert_eq!(l.sensor_time_ns, r.sensor_time_ns);
     }
-    // The velocity estimate starts from rest in the new process; once its
-    // filter has forgotten that, it is the live estimate.
-    // A reading skipped (live or replayed) disturbs it for a while too.
-    let settled = &matched[matched.len() / 2..];
-    let same = settled
-        .iter()
-        .filter(|(l, r)| (l.velocity - r.velocity).abs() <= 1e-9 + 1e-6 * l.velocity.abs())
-        .count();
+    // The velocity estimate starts from rest in the new process, and a
+    // reading skipped (live or replayed: a stage takes the newest) disturbs
+    // it for a while; where both saw the 100 readings before, it is the same.
+    let undisturbed =
+        |seq: u64| (seq.saturating_sub(100)..seq).all(|k| live.contains_key(&k) && replayed.contains_key(&k));
+    let settled: Vec<_> = matched.iter().filter(|(l, _)| undisturbed(l.sensor_seq)).collect();
     assert!(
-        same * 100 >= settled.len() * 90,
-        "{same} of {} velocity estimates reproduced",
-        settled.len()
+        settled.len() * 10 >= matched.len() * 3,
+        "{} of {} undisturbed",
+        settled.len(),
+        matched.len()
     );
+    for (l, r) in settled {
+        assert!(
+            (l.velocity - r.velocity).abs() <= 1e-6 * (1.0 + l.velocity.abs()),
+            "{l:?} vs {r:?}"
+        );
+    }
     drop(outputs);
     drop(bus);
     std::fs::remove_dir_all(dir).ok();
