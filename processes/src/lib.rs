@@ -10,8 +10,10 @@ use hydractl_samples::SensorSample;
 use hydractl_sim::stack::SensorEstimate;
 use hydractl_sim::Config;
 
+pub mod handover;
 pub mod recording;
 pub mod supervision;
+pub mod swap;
 
 #[derive(Parser, Debug)]
 pub struct ProcessArgs {
@@ -24,6 +26,13 @@ pub struct ProcessArgs {
     pub resume: Option<Resume>,
     #[command(flatten)]
     pub record: RecordArgs,
+    /// Position and torque only: the controller variant, instead of the config's.
+    #[arg(long)]
+    pub variant: Option<String>,
+    /// Position and torque only: start as a standby that tracks the running
+    /// controller, until a handover makes it take over.
+    #[arg(long)]
+    pub standby: bool,
 }
 
 /// Recorder only: where and how to record.

@@ -59,6 +59,8 @@ pub struct Supervised {
     pub name: &'static str,
     binary: PathBuf,
     config: Option<PathBuf>,
+    /// The controller variant it runs (`--variant`), for position and torque.
+    pub variant: Option<&'static str>,
     child: Option<Child>,
     pub pids: Vec<u32>,
     pub restarts: u32,
@@ -80,6 +82,7 @@ impl Supervised {
             name,
             binary: binary_dir.join(name),
             config,
+            variant: None,
             child: None,
             pids: Vec::new(),
             restarts: 0,
@@ -107,6 +110,9 @@ impl Supervised {
         let mut command = Command::new(&self.binary);
         if let Some(config) = &self.config {
             command.arg("--config").arg(config);
+        }
+        if let Some(variant) = self.variant {
+            command.arg("--variant").arg(variant);
         }
         command.args(extra_args);
         let child = command

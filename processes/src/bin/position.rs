@@ -1,19 +1,32 @@
 //! The outer loop and the reference trajectory, on each friction sample.
+//! Started with `--standby`, it tracks the running outer loop until a
+//! handover puts it in charge (hot swap).
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
+use hydractl_processes::handover::{Duty, Role, Tracker};
 use hydractl_processes::{estimate_of, time_of};
-use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample};
+use hydractl_samples::{code, service, FrictionSample, Handover, PositionSample, SensorSample};
 use hydractl_sim::stack::PositionStage;
 use hydractl_sim::{PositionVariant, Structure};
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("position")?;
     let (bus, config) = (&started.bus, &started.config);
-    let mut stage = PositionStage::new(config)?;
+    let variant = match started.args.variant.as_deref() {
+        None => config.control.outer().variant,
+        Some("pid") => PositionVariant::Pid,
+        Some("mfc") => PositionVariant::Mfc,
+        Some(other) => bail!("position: no variant `{other}`; the outer loop is `pid` or `mfc`"),
+    };
+    let mut stage = PositionStage::with_variant(config, variant)?;
     let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
     let friction: Inlet<FrictionSample> = Inlet::open(bus, service::FRICTION, 4)?;
     let out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION)?;
+    let standby_out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION_STANDBY)?;
+    let running: Reader<PositionSample> = Reader::open(bus, service::POSITION, 4)?;
+    let handovers: Reader<Handover> = Reader::open(bus, service::HANDOVER, 2)?;
+    let mut role = Role::new(code::STAGE_POSITION, started.args.standby);
     let structure = match stage.structure() {
         Structure::Position => code::STRUCTURE_POSITION,
         Structure::Cascade => code::STRUCTURE_CASCADE,
@@ -22,6 +35,7 @@ fn main() -> Result<()> {
         PositionVariant::Pid => code::VARIANT_PID,
         PositionVariant::Mfc => code::VARIANT_MFC,
     };
+    let mut tracker = Tracker::default();
     let mut latest_sensor = SensorSample::default();
     let mut failure = None;
     run_single(friction.listener(), &started.bus, || {
@@ -30,12 +44,17 @@ fn main() -> Result<()> {
                 latest_sensor = s;
             }
             let Some(f) = friction.latest()? else { return Ok(()) };
-            let output = stage.process(
-                time_of(f.sensor_seq, config),
-                &estimate_of(&latest_sensor),
-                f.compensation,
-            );
-            out.publish(PositionSample {
+            let duty = role.duty(&handovers, f.sensor_seq)?;
+            let newest_running = |r: Option<PositionSample>| r.map(|r| (r.sensor_seq, r.output));
+            if duty == Duty::Track {
+                if let Some((output, (time, estimate, friction))) = tracker.matched(newest_running(running.latest()?)) {
+                    stage.track(output, time, &estimate, friction);
+                }
+            }
+            let estimate = estimate_of(&latest_sensor);
+            let time = time_of(f.sensor_seq, config);
+            let output = stage.process(time, &estimate, f.compensation);
+            let sample = PositionSample {
                 sensor_seq: f.sensor_seq,
                 sensor_time_ns: f.sensor_time_ns,
                 stage_time_ns: clock::now_ns(),
@@ -46,7 +65,20 @@ fn main() -> Result<()> {
                 output: output.output,
                 structure,
                 variant,
-            })?;
+            };
+            match duty {
+                Duty::Publish => out.publish(sample)?,
+                Duty::Track => {
+                    standby_out.publish(sample)?;
+                    tracker.processed(f.sensor_seq, (time, estimate, f.compensation));
+                    if let Some((output, (time, estimate, friction))) =
+                        tracker.matched(newest_running(running.latest()?))
+                    {
+                        stage.track(output, time, &estimate, friction);
+                    }
+                }
+                Duty::Silent => {}
+            }
             Ok(())
         })
     })?;

@@ -7,13 +7,16 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use hydractl_bus::{clock, run_loop, Bus, Outlet, Reader, RunScope};
+use hydractl_bus::{clock, run_loop, Bus, CommandServer, Outlet, PendingCommand, Reader, RunScope};
 use hydractl_processes::supervision::{Supervised, PIPELINE};
+use hydractl_processes::swap::{SwitchQuality, ValveLog};
 use hydractl_processes::RecordArgs;
 use hydractl_samples::{
-    fixed_name, service, FrictionSample, PlantReading, PositionSample, ProcessStatus, RecorderStatus, SensorSample,
-    SupervisorStatus, TorqueSample, ValveSample, MAX_PROCESSES,
+    code, fixed_name, service, FrictionSample, Handover, PlantReading, PositionSample, ProcessStatus, RecorderStatus,
+    SensorSample, SupervisorEvent, SupervisorReply, SupervisorRequest, SupervisorStatus, TorqueSample, ValveSample,
+    MAX_PROCESSES,
 };
+use hydractl_sim::{PositionVariant, Structure, TorqueVariant};
 
 /// The newest sequence number seen on each pipeline service.
 struct Heartbeats {
@@ -67,6 +70,17 @@ fn main() -> Result<()> {
         .iter()
         .map(|(name, _, _)| Supervised::new(name, &dir, started.args.config.clone()))
         .collect();
+    let cascade = started.config.control.structure == Structure::Cascade;
+    children[3].variant = Some(match started.config.control.outer().variant {
+        PositionVariant::Pid => "pid",
+        PositionVariant::Mfc => "mfc",
+    });
+    // In position-only control the torque stage passes the command through.
+    children[4].variant = cascade.then_some(match started.config.control.torque_variant {
+        TorqueVariant::Pid => "pid",
+        TorqueVariant::Hinf => "hinf",
+    });
+    let mut swaps = Swaps::open(&started.bus, dir.clone(), started.args.config.clone(), cascade)?;
     let mut recorder = started.args.record.out.as_ref().map(|out| RecorderChild {
         child: Supervised::new("recorder", &dir, started.args.config.clone()),
         args: started.args.record.clone(),
@@ -76,7 +90,7 @@ fn main() -> Result<()> {
         Some(r) => r.start(&started.bus, &scope),
         None => Ok(()),
     }
-    .and_then(|()| supervise(&started.bus, &scope, &policy, &mut children, &mut recorder));
+    .and_then(|()| supervise(&started.bus, &scope, &policy, &mut children, &mut recorder, &mut swaps));
 
     // Stop the loop, then the recorder, which drains what the loop last
     // published and finishes its file; then clean what is left.
@@ -93,6 +107,8 @@ fn main() -> Result<()> {
         // than a control process's stop.
         r.child.finish_stop(Instant::now() + Duration::from_secs(10));
     }
+    // Ports before their node: a port keeps its node alive.
+    drop(swaps);
     drop(started.bus);
     // Clean up whatever the outcome; report the outcome's error first.
     let cleaned = scope.clean_stale();
@@ -152,6 +168,7 @@ fn supervise(
     policy: &hydractl_sim::SupervisorConfig,
     children: &mut [Supervised],
     recorder: &mut Option<RecorderChild>,
+    swaps: &mut Swaps,
 ) -> Result<()> {
     for child in children.iter_mut() {
         child.spawn(scope, &[])?;
@@ -239,6 +256,7 @@ fn supervise(
                     child.restarts += 1;
                 }
             }
+            swaps.tick(scope, children, last_reading.map(|r| r.sensor_seq), now)?;
             if now.saturating_duration_since(last_status) >= Duration::from_millis(100) {
                 last_status = now;
                 let recorder = recorder.as_ref().map(|r| &r.child);
@@ -261,12 +279,15 @@ fn status_of(
 ) -> SupervisorStatus {
     let mut status = SupervisorStatus {
         seq,
+        // The plant process is the simulated rotator (on the vehicle, the
+        // machine stands in its place).
+        plant_is_simulation: 1,
         stage_time_ns: clock::now_ns(),
         ..SupervisorStatus::default()
     };
     let entries = children.iter().map(|c| ProcessStatus {
         name: fixed_name(c.name),
-        variant: [0; 16],
+        variant: fixed_name(c.variant.unwrap_or(if c.name == "torque" { "bypassed" } else { "" })),
         pid: c.pid().unwrap_or(0),
         restarts: c.restarts,
         healthy: u32::from(c.is_running() && now.saturating_duration_since(c.last_output) <= hung_after),
@@ -300,4 +321,320 @@ fn status_of(
     }
     status.process_count = count.min(MAX_PROCESSES) as u32;
     status
+}
+
+/// Hot swaps of the position or torque controller, asked for over
+/// `hydractl/supervisor/command`: the new variant starts as a standby
+/// process that tracks the running one; once it answers, a handover names
+/// the reading from which it is in charge; the valve's samples around that
+/// reading judge the switch; then the old process is stopped.
+struct Swaps {
+    commands: CommandServer<SupervisorRequest, SupervisorReply>,
+    handovers: Outlet<Handover>,
+    events: Outlet<SupervisorEvent>,
+    valve: Reader<ValveSample>,
+    standby_position: Reader<PositionSample>,
+    standby_torque: Reader<TorqueSample>,
+    log: ValveLog,
+    dir: PathBuf,
+    config: Option<PathBuf>,
+    cascade: bool,
+    current: Option<SwapInProgress>,
+    handover_seq: u64,
+    event_seq: u64,
+}
+
+struct SwapInProgress {
+    index: usize,
+    stage: u32,
+    from: &'static str,
+    to: &'static str,
+    child: Supervised,
+    request: PendingCommand<SupervisorRequest, SupervisorReply>,
+    standby_outputs: u32,
+    phase: SwapPhase,
+}
+
+enum SwapPhase {
+    Starting { since: Instant },
+    HandedOver { at_seq: u64, since: Instant },
+}
+
+/// Readings between the handover being published and the switch: 20 ms,
+/// ample for both processes to read it.
+const HANDOVER_LEAD: u64 = 20;
+/// Standby outputs required before a handover: it has tracked for 100 ms.
+const STANDBY_OUTPUTS: u32 = 100;
+
+impl Swaps {
+    fn open(bus: &Bus, dir: PathBuf, config: Option<PathBuf>, cascade: bool) -> Result<Self> {
+        Ok(Self {
+            commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
+            handovers: Outlet::open(bus, service::HANDOVER)?,
+            events: Outlet::open(bus, service::SUPERVISOR_EVENTS)?,
+            valve: Reader::open(bus, service::VALVE, 256)?,
+            standby_position: Reader::open(bus, service::POSITION_STANDBY, 256)?,
+            standby_torque: Reader::open(bus, service::TORQUE_STANDBY, 256)?,
+            log: ValveLog::with_capacity(4096),
+            dir,
+            config,
+            cascade,
+            current: None,
+            handover_seq: 0,
+            event_seq: 0,
+        })
+    }
+
+    fn tick(
+        &mut self,
+        scope: &RunScope,
+        children: &mut [Supervised],
+        reading: Option<u64>,
+        now: Instant,
+    ) -> Result<()> {
+        while let Some(v) = self.valve.next()? {
+            self.log.push(v.sensor_seq, v.command, v.faults);
+        }
+        let mut standby_outputs = 0;
+        while self.standby_position.next()?.is_some() {
+            standby_outputs += 1;
+        }
+        while self.standby_torque.next()?.is_some() {
+            standby_outputs += 1;
+        }
+        if let Some(request) = self.commands.receive()? {
+            match self.current {
+                Some(_) => reply(
+                    request,
+                    false,
+                    0,
+                    "a swap is already under way; try again when it is done",
+                )?,
+                None => self.begin(scope, children, request)?,
+            }
+        }
+        let Some(mut swap) = self.current.take() else {
+            return Ok(());
+        };
+        swap.standby_outputs += standby_outputs;
+        match swap.phase {
+            SwapPhase::Starting { since } => {
+                if swap.child.reap() {
+                    return self.fail(
+                        swap,
+                        "it exited while starting (its error is above, on the supervisor's stderr)",
+                    );
+                }
+                if now.saturating_duration_since(since) > Duration::from_secs(5) {
+                    swap.child.kill_hung();
+                    return self.fail(swap, "it gave no output within 5 s");
+                }
+                match reading {
+                    Some(seq) if swap.standby_outputs >= STANDBY_OUTPUTS => {
+                        let at_seq = seq + HANDOVER_LEAD;
+                        self.handovers.publish(Handover {
+                            seq: self.handover_seq,
+                            stage_time_ns: clock::now_ns(),
+                            at_seq,
+                            new_pid: swap.child.pid().unwrap_or(0),
+                            stage: swap.stage,
+                            variant: code::variant_code(swap.to).unwrap_or(0),
+                            reserved: 0,
+                        })?;
+                        self.handover_seq += 1;
+                        swap.phase = SwapPhase::HandedOver { at_seq, since: now };
+                    }
+                    _ => {}
+                }
+                self.current = Some(swap);
+            }
+            SwapPhase::HandedOver { at_seq, since } => {
+                let judged = self.log.judge(at_seq, 20, 1000, 1000);
+                let timed_out = now.saturating_duration_since(since) > Duration::from_secs(5);
+                if judged.is_none() && !timed_out {
+                    self.current = Some(swap);
+                    return Ok(());
+                }
+                let quality = judged.unwrap_or(SwitchQuality {
+                    missed_cycles: 120,
+                    command_step: 1.0,
+                    loop_step_before: 0.0,
+                    loop_step_after: 0.0,
+                });
+                // The new process takes the old one's place: its restarts,
+                // its pid history; the old one has stopped answering.
+                let old = &mut children[swap.index];
+                swap.child.restarts = old.restarts;
+                swap.child.pids.splice(0..0, old.pids.iter().copied());
+                swap.child.last_output = now;
+                std::mem::swap(old, &mut swap.child);
+                swap.child.request_stop();
+                swap.child.finish_stop(now + Duration::from_secs(1));
+                self.publish_event(code::EVENT_SWAP, &swap, at_seq, quality)?;
+                let message = format!(
+                    "{} now runs {} (was {}) from reading {at_seq}: {} missed cycles, command step {:.2}% of its range (the loop's own steps: {:.2}% before, {:.2}% after)",
+                    code::stage_name(swap.stage),
+                    swap.to,
+                    swap.from,
+                    quality.missed_cycles,
+                    quality.command_step * 100.0,
+                    quality.loop_step_before * 100.0,
+                    quality.loop_step_after * 100.0
+                );
+                let from = code::variant_code(swap.from).unwrap_or(0);
+                swap.request.reply(SupervisorReply {
+                    command_step: quality.command_step,
+                    missed_cycles: quality.missed_cycles,
+                    accepted: 1,
+                    from_variant: from,
+                    message: fixed_name(&message),
+                })?;
+            }
+        }
+        Ok(())
+    }
+
+    fn begin(
+        &mut self,
+        scope: &RunScope,
+        children: &[Supervised],
+        request: PendingCommand<SupervisorRequest, SupervisorReply>,
+    ) -> Result<()> {
+        let asked = request.request();
+        let (index, name) = match asked.stage {
+            code::STAGE_POSITION => (3, "position"),
+            code::STAGE_TORQUE => (4, "torque"),
+            other => {
+                return reply(
+                    request,
+                    false,
+                    0,
+                    &format!("no stage {other}: swap `position` or `torque`"),
+                )
+            }
+        };
+        let to = match (asked.stage, code::variant_name(asked.variant)) {
+            (code::STAGE_POSITION, v @ ("pid" | "mfc")) => v,
+            (code::STAGE_TORQUE, v @ ("pid" | "hinf")) => v,
+            (_, v) => {
+                let allowed = if asked.stage == code::STAGE_POSITION {
+                    "pid or mfc"
+                } else {
+                    "pid or hinf"
+                };
+                return reply(request, false, 0, &format!("{name} has no variant `{v}`: {allowed}"));
+            }
+        };
+        if asked.stage == code::STAGE_TORQUE && !self.cascade {
+            return reply(
+                request,
+                false,
+                0,
+                "the torque stage is bypassed in position-only control: nothing to swap",
+            );
+        }
+        let from = children[index].variant.unwrap_or("?");
+        if from == to {
+            return reply(
+                request,
+                false,
+                code::variant_code(from).unwrap_or(0),
+                &format!("{name} already runs {to}"),
+            );
+        }
+        if !children[index].is_running() {
+            return reply(
+                request,
+                false,
+                0,
+                &format!("{name} is not running (restarting?): try again"),
+            );
+        }
+        let mut child = Supervised::new(
+            if asked.stage == code::STAGE_POSITION {
+                "position"
+            } else {
+                "torque"
+            },
+            &self.dir,
+            self.config.clone(),
+        );
+        child.variant = Some(to);
+        if let Err(e) = child.spawn(scope, &["--standby".to_owned()]) {
+            return reply(
+                request,
+                false,
+                0,
+                &format!("cannot start the {to} {name} process: {e:#}"),
+            );
+        }
+        self.current = Some(SwapInProgress {
+            index,
+            stage: asked.stage,
+            from,
+            to,
+            child,
+            request,
+            standby_outputs: 0,
+            phase: SwapPhase::Starting { since: Instant::now() },
+        });
+        Ok(())
+    }
+
+    /// The running controller stays in charge; the caller hears why.
+    fn fail(&mut self, swap: SwapInProgress, why: &str) -> Result<()> {
+        let quality = SwitchQuality {
+            missed_cycles: 0,
+            command_step: 0.0,
+            loop_step_before: 0.0,
+            loop_step_after: 0.0,
+        };
+        self.publish_event(code::EVENT_SWAP_FAILED, &swap, 0, quality)?;
+        let message = format!(
+            "the {} {} process did not take over, {why}; {} stays in charge",
+            swap.to,
+            code::stage_name(swap.stage),
+            swap.from
+        );
+        reply(
+            swap.request,
+            false,
+            code::variant_code(swap.from).unwrap_or(0),
+            &message,
+        )
+    }
+
+    fn publish_event(&mut self, kind: u32, swap: &SwapInProgress, at_seq: u64, quality: SwitchQuality) -> Result<()> {
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: at_seq,
+            missed_cycles: quality.missed_cycles,
+            command_step: quality.command_step,
+            loop_step_before: quality.loop_step_before,
+            loop_step_after: quality.loop_step_after,
+            kind,
+            pid: swap.child.pid().unwrap_or(0),
+            process: fixed_name(code::stage_name(swap.stage)),
+            from: fixed_name(swap.from),
+            to: fixed_name(swap.to),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
+    }
+}
+
+fn reply(
+    request: PendingCommand<SupervisorRequest, SupervisorReply>,
+    accepted: bool,
+    from_variant: u32,
+    message: &str,
+) -> Result<()> {
+    Ok(request.reply(SupervisorReply {
+        accepted: u32::from(accepted),
+        from_variant,
+        message: fixed_name(message),
+        ..SupervisorReply::default()
+    })?)
 }

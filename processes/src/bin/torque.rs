@@ -1,25 +1,38 @@
 //! The inner torque loop on each position sample (passes the command
-//! through in position-only control).
+//! through in position-only control). Started with `--standby`, it tracks
+//! the running inner loop until a handover puts it in charge (hot swap).
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_processes::estimate_of;
-use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample, TorqueSample};
+use hydractl_processes::handover::{Duty, Role, Tracker};
+use hydractl_samples::{code, service, FrictionSample, Handover, PositionSample, SensorSample, TorqueSample};
 use hydractl_sim::stack::{PositionOutput, TorqueStage};
 use hydractl_sim::TorqueVariant;
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("torque")?;
     let bus = &started.bus;
-    let mut stage = TorqueStage::new(&started.config)?;
+    let variant = match started.args.variant.as_deref() {
+        None => started.config.control.torque_variant,
+        Some("pid") => TorqueVariant::Pid,
+        Some("hinf") => TorqueVariant::Hinf,
+        Some(other) => bail!("torque: no variant `{other}`; the inner loop is `pid` or `hinf`"),
+    };
+    let mut stage = TorqueStage::with_variant(&started.config, variant)?;
     let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
     let friction: Reader<FrictionSample> = Reader::open(bus, service::FRICTION, 4)?;
     let position: Inlet<PositionSample> = Inlet::open(bus, service::POSITION, 4)?;
     let out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE)?;
+    let standby_out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE_STANDBY)?;
+    let running: Reader<TorqueSample> = Reader::open(bus, service::TORQUE, 4)?;
+    let handovers: Reader<Handover> = Reader::open(bus, service::HANDOVER, 2)?;
+    let mut role = Role::new(code::STAGE_TORQUE, started.args.standby);
     let variant = match stage.variant() {
         TorqueVariant::Pid => code::VARIANT_PID,
         TorqueVariant::Hinf => code::VARIANT_HINF,
     };
+    let mut tracker = Tracker::default();
     let (mut latest_sensor, mut latest_friction) = (SensorSample::default(), FrictionSample::default());
     let mut failure = None;
     run_single(position.listener(), &started.bus, || {
@@ -31,6 +44,15 @@ fn main() -> Result<()> {
                 latest_friction = f;
             }
             let Some(p) = position.latest()? else { return Ok(()) };
+            let duty = role.duty(&handovers, p.sensor_seq)?;
+            let newest_running = |r: Option<TorqueSample>| r.map(|r| (r.sensor_seq, r.command));
+            if duty == Duty::Track {
+                if let Some((command, (output, estimate, friction))) =
+                    tracker.matched(newest_running(running.latest()?))
+                {
+                    stage.track(command, &output, &estimate, friction);
+                }
+            }
             let output = PositionOutput {
                 reference: hydractl_sim::Reference {
                     angle: p.reference_angle,
@@ -39,8 +61,9 @@ fn main() -> Result<()> {
                 },
                 output: p.output,
             };
-            let command = stage.process(&output, &estimate_of(&latest_sensor), latest_friction.compensation);
-            out.publish(TorqueSample {
+            let estimate = estimate_of(&latest_sensor);
+            let command = stage.process(&output, &estimate, latest_friction.compensation);
+            let sample = TorqueSample {
                 sensor_seq: p.sensor_seq,
                 sensor_time_ns: p.sensor_time_ns,
                 stage_time_ns: clock::now_ns(),
@@ -49,7 +72,20 @@ fn main() -> Result<()> {
                 command,
                 variant,
                 reserved: 0,
-            })?;
+            };
+            match duty {
+                Duty::Publish => out.publish(sample)?,
+                Duty::Track => {
+                    standby_out.publish(sample)?;
+                    tracker.processed(p.sensor_seq, (output, estimate, latest_friction.compensation));
+                    if let Some((command, (output, estimate, friction))) =
+                        tracker.matched(newest_running(running.latest()?))
+                    {
+                        stage.track(command, &output, &estimate, friction);
+                    }
+                }
+                Duty::Silent => {}
+            }
             Ok(())
         })
     })?;

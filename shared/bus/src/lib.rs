@@ -4,12 +4,14 @@
 //! (`run_loop`), and to clean up what a run leaves behind.
 
 pub mod clock;
+mod command;
 pub mod devices;
 mod outlet;
 pub mod placement;
 mod scope;
 mod wait;
 
+pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
 pub use outlet::{Inlet, Outlet, Reader};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{guarded, run_loop, run_single, Flow, LoopExit, Wake};

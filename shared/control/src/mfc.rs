@@ -93,14 +93,32 @@ impl Mfc {
         self.output
     }
 
+    /// Tracking a running controller's `output`, period after period, while
+    /// this one stands by: its forward model runs on, as it would in
+    /// charge, and PID B's integrator takes up the difference, so that from
+    /// the switch it goes on from the running output. (Re-initializing the
+    /// model from the measured, noisy velocity every period would not: with
+    /// the cascade's gains, one period's noise is tens of N·m.)
+    pub fn track(&mut self, output: f64) {
+        let delta = output - self.output;
+        self.pid_b.shift_output(delta);
+        self.output = output;
+    }
+
     /// Bumpless start from a running loop: the model starts where the plant
     /// is, PID A at zero, and PID B so that the next output is `output`.
     pub fn initialize_output(&mut self, output: f64, reference: f64, angle: f64, velocity: f64, feedforward: f64) {
         self.model_angle = angle;
         self.model_velocity = velocity;
-        self.pid_a.initialize_output(0.0, 0.0, 0.0);
+        // Each PID remembers the error it would have seen had it been
+        // running, so its derivative term starts from the motion, not from
+        // a jump: next period the plant is `velocity·ts` further on (PID A's
+        // error), and the reference-to-model error moves at the reference's
+        // speed less the model's (PID B's).
+        let ts = self.ts;
+        self.pid_a.initialize_output(0.0, -velocity * ts, 0.0);
         self.pid_b
-            .initialize_output(output - feedforward, reference - angle, 0.0);
+            .initialize_output(output - feedforward, reference - angle + velocity * ts, 0.0);
     }
 }
 
@@ -159,9 +177,35 @@ mod tests {
     }
 
     #[test]
+    fn tracking_keeps_the_model_and_moves_the_output() {
+        let mut c = Mfc::new(params(), 0.001).expect("valid");
+        // A slow ramp, the plant on the model: nothing saturates.
+        let reference = |k: usize| 0.01 * k as f64 * 0.001;
+        let mut own = 0.0;
+        for k in 0..200 {
+            own = c.update(reference(k), c.model_angle(), 0.0);
+        }
+        let model = c.model_angle();
+        c.track(own + 0.1);
+        assert_eq!(c.model_angle(), model, "the model runs on untouched");
+        let mut free = c.clone();
+        free.track(own);
+        let shifted = c.update(reference(200), model, 0.0);
+        let unshifted = free.update(reference(200), model, 0.0);
+        assert!((shifted - unshifted - 0.1).abs() < 1e-9, "{shifted} {unshifted}");
+    }
+
+    #[test]
     fn initialize_output_is_bumpless() {
         let mut c = Mfc::new(params(), 0.001).expect("valid");
-        c.initialize_output(0.42, 0.3, 0.25, 0.1, 0.02);
+        c.initialize_output(0.42, 0.3, 0.25, 0.0, 0.02);
         assert!((c.update(0.3, 0.25, 0.02) - 0.42).abs() < 1e-12);
+        // On a moving plant the next output moves on from it, without the
+        // derivative kick a zero remembered error would give.
+        let (velocity, ts) = (0.5, 0.001);
+        let mut c = Mfc::new(params(), ts).expect("valid");
+        c.initialize_output(0.42, 0.3, 0.25, velocity, 0.02);
+        let next = c.update(0.3 + velocity * ts, 0.25 + velocity * ts, 0.02);
+        assert!((next - 0.42).abs() < 1e-3, "{next}");
     }
 }

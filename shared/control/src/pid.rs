@@ -121,6 +121,15 @@ impl Pid {
         output
     }
 
+    /// Tracking: moves the integrator, and so this and every later output,
+    /// by `delta`, leaving the derivative's memory as it is.
+    pub fn shift_output(&mut self, delta: f64) {
+        if delta.is_finite() {
+            self.integral += delta;
+            self.output += delta;
+        }
+    }
+
     /// Bumpless start: sets the integrator so that, for this `error` and
     /// `feedforward`, the output is `output`.
     pub fn initialize_output(&mut self, output: f64, error: f64, feedforward: f64) {

@@ -30,6 +30,15 @@ pub mod service {
     pub const SUPERVISOR_STATUS: &str = "hydractl/supervisor/status";
     /// The recorder's progress: messages written, samples missed, files.
     pub const RECORDER_STATUS: &str = "hydractl/recorder/status";
+    /// Requests to the supervisor (request-response): swap a controller.
+    pub const SUPERVISOR_COMMAND: &str = "hydractl/supervisor/command";
+    /// What the supervisor did: swaps, faults and what it did about them.
+    pub const SUPERVISOR_EVENTS: &str = "hydractl/supervisor/events";
+    /// The cycle at which a standby controller takes over from the running one.
+    pub const HANDOVER: &str = "hydractl/control/handover";
+    /// A standby controller's outputs while it tracks the running one.
+    pub const POSITION_STANDBY: &str = "hydractl/position/standby";
+    pub const TORQUE_STANDBY: &str = "hydractl/torque/standby";
 }
 
 /// Validity flags of a sensor sample.
@@ -59,6 +68,39 @@ pub mod code {
     pub const VARIANT_PID: u32 = 0;
     pub const VARIANT_MFC: u32 = 1;
     pub const VARIANT_HINF: u32 = 2;
+    pub const STAGE_POSITION: u32 = 0;
+    pub const STAGE_TORQUE: u32 = 1;
+    /// [`crate::SupervisorEvent`] kinds.
+    pub const EVENT_SWAP: u32 = 0;
+    pub const EVENT_SWAP_FAILED: u32 = 1;
+    pub const EVENT_CRASH: u32 = 2;
+    pub const EVENT_HANG: u32 = 3;
+
+    pub fn variant_name(variant: u32) -> &'static str {
+        match variant {
+            VARIANT_PID => "pid",
+            VARIANT_MFC => "mfc",
+            VARIANT_HINF => "hinf",
+            _ => "?",
+        }
+    }
+
+    pub fn variant_code(name: &str) -> Option<u32> {
+        match name {
+            "pid" => Some(VARIANT_PID),
+            "mfc" => Some(VARIANT_MFC),
+            "hinf" => Some(VARIANT_HINF),
+            _ => None,
+        }
+    }
+
+    pub fn stage_name(stage: u32) -> &'static str {
+        match stage {
+            STAGE_POSITION => "position",
+            STAGE_TORQUE => "torque",
+            _ => "?",
+        }
+    }
 }
 
 /// What the plant's sensors read (on the vehicle: what arrives on the bus).
@@ -191,6 +233,91 @@ pub struct SupervisorStatus {
     pub plant_is_simulation: u32,
 }
 
+/// From the supervisor to the controllers: at `at_seq`, the process
+/// `new_pid` takes over `stage` and the one running stops publishing.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::Handover")]
+pub struct Handover {
+    pub seq: u64,
+    pub stage_time_ns: u64,
+    /// The first sensor reading the new process answers.
+    pub at_seq: u64,
+    pub new_pid: u32,
+    /// [`code`] stage and variant.
+    pub stage: u32,
+    pub variant: u32,
+    pub reserved: u32,
+}
+
+/// Something the supervisor saw and what it did: a swap, a fault.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::SupervisorEvent")]
+pub struct SupervisorEvent {
+    pub seq: u64,
+    pub stage_time_ns: u64,
+    /// Swap: the handover's reading. Fault: the last reading the process
+    /// answered.
+    pub sensor_seq: u64,
+    /// Valve periods without a fresh command around the event.
+    pub missed_cycles: u64,
+    /// Swap: the valve command's largest step from the switch through its
+    /// transient (5 readings), as a fraction of its range [-1, 1].
+    pub command_step: f64,
+    /// Swap: the largest such step of the loop's own, in the second before
+    /// the switch (old controller) and after its transient (new one).
+    pub loop_step_before: f64,
+    pub loop_step_after: f64,
+    /// Fault: from the process's last output to the supervisor seeing it.
+    pub detected_after_ns: u64,
+    /// Fault: from the detection to the new process's first output (0 if
+    /// not restarted).
+    pub restarted_after_ns: u64,
+    /// [`code`] `EVENT_*`.
+    pub kind: u32,
+    pub pid: u32,
+    /// NUL-padded ASCII: the process (or stage), and the variants.
+    pub process: [u8; 16],
+    pub from: [u8; 16],
+    pub to: [u8; 16],
+}
+
+/// A request to the supervisor.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("hydractl::SupervisorRequest")]
+pub struct SupervisorRequest {
+    /// [`code`] stage and variant to swap to.
+    pub stage: u32,
+    pub variant: u32,
+}
+
+/// The supervisor's answer, once the swap is done or has failed.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("hydractl::SupervisorReply")]
+pub struct SupervisorReply {
+    pub command_step: f64,
+    pub missed_cycles: u64,
+    pub accepted: u32,
+    pub from_variant: u32,
+    /// NUL-padded UTF-8: what happened, in words.
+    pub message: [u8; 176],
+}
+
+impl Default for SupervisorReply {
+    fn default() -> Self {
+        Self {
+            command_step: 0.0,
+            missed_cycles: 0,
+            accepted: 0,
+            from_variant: 0,
+            message: [0; 176],
+        }
+    }
+}
+
 /// The recorder's progress, published every 100 ms.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
 #[repr(C)]
@@ -284,12 +411,15 @@ impl BenchSample {
     }
 }
 
-/// Writes `text` into a fixed NUL-padded field, truncating.
+/// Writes `text` into a fixed NUL-padded field, truncating at a character
+/// boundary.
 pub fn fixed_name<const N: usize>(text: &str) -> [u8; N] {
-    let mut out = [0u8; N];
-    for (o, b) in out.iter_mut().zip(text.bytes()) {
-        *o = b;
+    let mut end = text.len().min(N);
+    while !text.is_char_boundary(end) {
+        end -= 1;
     }
+    let mut out = [0u8; N];
+    out[..end].copy_from_slice(&text.as_bytes()[..end]);
     out
 }
 
@@ -315,6 +445,9 @@ mod tests {
         assert_eq!(size_of::<ProcessStatus>(), 16 + 16 + 16);
         assert_eq!(size_of::<SupervisorStatus>(), 16 + MAX_PROCESSES * 48 + 8);
         assert_eq!(size_of::<RecorderStatus>(), 7 * 8);
+        assert_eq!(size_of::<Handover>(), 5 * 8);
+        assert_eq!(size_of::<SupervisorEvent>(), 9 * 8 + 8 + 48);
+        assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 176);
     }
 
     #[test]
@@ -336,5 +469,9 @@ mod tests {
         assert_eq!(name_str(&n), "position");
         let long: [u8; 4] = fixed_name("supervisor");
         assert_eq!(name_str(&long), "supe");
+        let accented: [u8; 4] = fixed_name("ab\u{b5}s");
+        assert_eq!(name_str(&accented), "ab\u{b5}");
+        let cut: [u8; 3] = fixed_name("ab\u{b5}s");
+        assert_eq!(name_str(&cut), "ab");
     }
 }

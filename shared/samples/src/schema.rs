@@ -14,8 +14,8 @@ use std::mem::size_of;
 use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{
-    BenchSample, FrictionSample, PlantReading, PositionSample, RecorderStatus, SensorSample, SupervisorStatus,
-    TorqueSample, ValveSample,
+    BenchSample, FrictionSample, Handover, PlantReading, PositionSample, RecorderStatus, SensorSample, SupervisorEvent,
+    SupervisorStatus, TorqueSample, ValveSample,
 };
 
 #[cfg(not(target_endian = "little"))]
@@ -73,7 +73,7 @@ pub trait KindVisitor {
 }
 
 /// Every recordable kind.
-pub const KINDS: [&SampleKind; 9] = [
+pub const KINDS: [&SampleKind; 11] = [
     &PlantReading::KIND,
     &SensorSample::KIND,
     &FrictionSample::KIND,
@@ -82,12 +82,14 @@ pub const KINDS: [&SampleKind; 9] = [
     &ValveSample::KIND,
     &SupervisorStatus::KIND,
     &RecorderStatus::KIND,
+    &Handover::KIND,
+    &SupervisorEvent::KIND,
     &BenchSample::KIND,
 ];
 
 /// The stack's own services and what they carry: the recorder subscribes
 /// to these before their publishers exist, discovery finds the rest.
-pub const STACK_SERVICES: [(&str, &SampleKind); 8] = [
+pub const STACK_SERVICES: [(&str, &SampleKind); 10] = [
     (crate::service::PLANT_READING, &PlantReading::KIND),
     (crate::service::SENSOR, &SensorSample::KIND),
     (crate::service::FRICTION, &FrictionSample::KIND),
@@ -96,6 +98,8 @@ pub const STACK_SERVICES: [(&str, &SampleKind); 8] = [
     (crate::service::VALVE, &ValveSample::KIND),
     (crate::service::SUPERVISOR_STATUS, &SupervisorStatus::KIND),
     (crate::service::RECORDER_STATUS, &RecorderStatus::KIND),
+    (crate::service::SUPERVISOR_EVENTS, &SupervisorEvent::KIND),
+    (crate::service::HANDOVER, &Handover::KIND),
 ];
 
 /// Visits the type named `type_name`; `None` for a type we do not know.
@@ -112,6 +116,8 @@ pub fn visit_kind<V: KindVisitor>(type_name: &str, visitor: V) -> Option<V::Outp
         n if is::<ValveSample>(n) => visitor.visit::<ValveSample>(),
         n if is::<SupervisorStatus>(n) => visitor.visit::<SupervisorStatus>(),
         n if is::<RecorderStatus>(n) => visitor.visit::<RecorderStatus>(),
+        n if is::<Handover>(n) => visitor.visit::<Handover>(),
+        n if is::<SupervisorEvent>(n) => visitor.visit::<SupervisorEvent>(),
         n if is::<BenchSample>(n) => visitor.visit::<BenchSample>(),
         _ => return None,
     })
@@ -181,6 +187,18 @@ recordable!(
     "RecorderStatus",
     stage_time_ns,
     "uint64 seq\nuint64 stage_time_ns\nuint64 messages\nuint64 dropped\nuint64 gaps\nuint64 bytes\nuint32 files\nuint32 channels\n"
+);
+recordable!(
+    Handover,
+    "Handover",
+    stage_time_ns,
+    "uint64 seq\nuint64 stage_time_ns\nuint64 at_seq\nuint32 new_pid\nuint32 stage\nuint32 variant\nuint32 reserved\n"
+);
+recordable!(
+    SupervisorEvent,
+    "SupervisorEvent",
+    stage_time_ns,
+    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nuint8[16] process\nuint8[16] from\nuint8[16] to\n"
 );
 recordable!(
     BenchSample,

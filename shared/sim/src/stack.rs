@@ -192,6 +192,29 @@ impl PositionStage {
         };
         PositionOutput { reference, output }
     }
+
+    /// Bumpless transfer: called after [`PositionStage::process`] for the
+    /// same period, sets this loop's state as if its output had been
+    /// `output`, the output of the loop it is about to replace, so that it
+    /// goes on from there. A standby stage calls it every period while it
+    /// tracks the running one.
+    pub fn track(&mut self, output: f64, time: f64, sensor: &SensorEstimate, friction: f64) {
+        let friction = match self.structure {
+            Structure::Position => friction,
+            Structure::Cascade => 0.0,
+        };
+        let reference = self.trajectory.sample(time);
+        match &mut self.outer {
+            OuterLoop::Pid(pid) => pid.initialize_output(output, reference.angle - sensor.angle, friction),
+            // A standby MFC has started (and initialized its model) on its
+            // first period; from then on its model runs on.
+            OuterLoop::Mfc(mfc) if self.started => mfc.track(output),
+            OuterLoop::Mfc(mfc) => {
+                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction)
+            }
+        }
+        self.started = true;
+    }
 }
 
 /// The inner loop's variants.
@@ -213,7 +236,17 @@ pub struct TorqueStage {
     rate_blend: f64,
     previous_reference: Option<f64>,
     reference_rate: f64,
+    /// Bumpless transfer into the H∞ loop: the running command less the
+    /// H∞'s own, added to its output and faded out after the switch (its
+    /// state, full of fast modes, is never forced).
+    transfer_offset: f64,
+    transfer_fade: f64,
+    /// The H∞ loop's own last command, before the offset.
+    own_command: f64,
 }
+
+/// How fast a transfer offset fades once a standby inner loop is in charge.
+const TRANSFER_FADE_S: f64 = 0.05;
 
 impl TorqueStage {
     pub fn new(config: &Config) -> Result<Self, StackError> {
@@ -247,6 +280,9 @@ impl TorqueStage {
             rate_blend: ts / (torque.rate_filter_s + ts),
             previous_reference: None,
             reference_rate: 0.0,
+            transfer_offset: 0.0,
+            transfer_fade: (-ts / TRANSFER_FADE_S).exp(),
+            own_command: 0.0,
         })
     }
 
@@ -266,6 +302,24 @@ impl TorqueStage {
         }
     }
 
+    /// Bumpless transfer, as [`PositionStage::track`]: called after
+    /// [`TorqueStage::process`] for the same period, sets the inner loop's
+    /// state as if its command had been `command`. Nothing to track when
+    /// the stage passes the command through.
+    pub fn track(&mut self, command: f64, position: &PositionOutput, sensor: &SensorEstimate, friction: f64) {
+        if self.structure == Structure::Position {
+            return;
+        }
+        let feedforward = friction
+            + self.velocity_feedforward * position.reference.velocity
+            + self.rate_feedforward * self.reference_rate;
+        let error = position.output - sensor.torque;
+        match &mut self.inner {
+            InnerLoop::Pid(pid) => pid.initialize_output(command, error, feedforward),
+            InnerLoop::HInfinity(_) => self.transfer_offset = command - self.own_command,
+        }
+    }
+
     fn inner_loop(
         &mut self,
         torque_reference: f64,
@@ -281,7 +335,12 @@ impl TorqueStage {
         let error = torque_reference - sensor.torque;
         match &mut self.inner {
             InnerLoop::Pid(pid) => pid.update(error, feedforward),
-            InnerLoop::HInfinity(hinf) => (hinf.update(error) + feedforward).clamp(-1.0, 1.0),
+            InnerLoop::HInfinity(hinf) => {
+                self.own_command = hinf.update(error) + feedforward;
+                let command = self.own_command + self.transfer_offset;
+                self.transfer_offset *= self.transfer_fade;
+                command.clamp(-1.0, 1.0)
+            }
         }
     }
 }

@@ -2,6 +2,7 @@
 
 mod bench_latency;
 mod bench_record;
+mod control;
 mod model;
 mod recording;
 mod report;
@@ -39,6 +40,10 @@ enum Command {
     /// The grey-box model against measurements: fit, compare, diagnose, add an effect, report.
     #[command(subcommand)]
     Model(model::ModelCommand),
+    /// Swap a controller variant while the loop runs: `swap position mfc`, `swap torque hinf`, back with `pid`.
+    Swap(control::SwapArgs),
+    /// The running stack: processes, pids, variants in charge, health, restarts, plant.
+    Status(control::StatusArgs),
     /// Attach a recorder to the run already alive: every sample to MCAP.
     Record(recording::RecordArgs),
     /// Republish a recording's samples on their services.
@@ -193,6 +198,8 @@ fn main() -> Result<()> {
         Command::Linearize(args) => linearize(args),
         Command::Ident(IdentCommand::Tf(args)) => ident_tf(args),
         Command::Model(command) => model::run(command),
+        Command::Swap(args) => control::swap(args),
+        Command::Status(args) => control::status(args),
         Command::Record(args) => recording::record(args),
         Command::Replay(args) => recording::replay(args),
         Command::Mcap(command) => recording::mcap(command),

@@ -8,7 +8,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, RunScope, PREFIX_ENV};
-use hydractl_samples::{name_str, service, PlantReading, PositionSample, SupervisorStatus, ValveSample};
+use hydractl_samples::{
+    code, name_str, service, PlantReading, PositionSample, SupervisorEvent, SupervisorStatus, ValveSample,
+};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 use serde::Serialize;
@@ -101,6 +103,10 @@ struct RunSummary {
     /// Valve samples published in neutral with a fault flag.
     valve_fault_cycles: u64,
     processes: Vec<ProcessSummary>,
+    /// Controller swaps while the run ran, as the supervisor judged them.
+    swaps: Vec<SwapSummary>,
+    /// Swaps asked for that did not happen: the running controller stayed.
+    swap_failures: Vec<SwapSummary>,
     /// What the recording holds, read back from its file(s) after the run.
     #[serde(skip_serializing_if = "Option::is_none")]
     recording: Option<RecordingReport>,
@@ -116,6 +122,23 @@ struct RecordingReport {
     /// Sequence numbers the publishers skipped themselves (a stage that took
     /// the newest reading): in the data, not lost by the recording.
     gaps: u64,
+}
+
+#[derive(Serialize)]
+struct SwapSummary {
+    stage: String,
+    from: String,
+    to: String,
+    /// The first sensor reading the new controller answered.
+    at_seq: u64,
+    missed_cycles: u64,
+    /// The valve command's largest step from the switch through its
+    /// transient (5 readings), as a fraction of its range.
+    command_step: f64,
+    /// The loop's own largest steps: in the second before the switch, and
+    /// in the second after its transient.
+    loop_step_before: f64,
+    loop_step_after: f64,
 }
 
 #[derive(Default)]
@@ -224,6 +247,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let mut cycles_at_last_print = 0u64;
     let (mut outer_variant, mut inner_variant) = ("?", "?");
     let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 4)?;
+    let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
+    let (mut swaps, mut swap_failures) = (Vec::new(), Vec::new());
     let mut failure = None;
     let exit = run_loop(&[], Some(Duration::from_millis(10)), |_| {
         let mut step = || -> Result<Flow> {
@@ -243,7 +268,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 }
             }
             while let Some(p) = position.next()? {
-                outer_variant = variant_name(p.variant);
+                outer_variant = code::variant_name(p.variant);
                 if p.structure == hydractl_samples::code::STRUCTURE_POSITION {
                     inner_variant = "bypassed";
                 }
@@ -257,11 +282,28 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
             }
             if let Some(t) = torque.latest()? {
                 if inner_variant != "bypassed" {
-                    inner_variant = variant_name(t.variant);
+                    inner_variant = code::variant_name(t.variant);
                 }
             }
             if let Some(s) = status.latest()? {
                 merge_status(&mut processes, &s);
+            }
+            while let Some(e) = events.next()? {
+                let swap = SwapSummary {
+                    stage: name_str(&e.process).to_owned(),
+                    from: name_str(&e.from).to_owned(),
+                    to: name_str(&e.to).to_owned(),
+                    at_seq: e.sensor_seq,
+                    missed_cycles: e.missed_cycles,
+                    command_step: e.command_step,
+                    loop_step_before: e.loop_step_before,
+                    loop_step_after: e.loop_step_after,
+                };
+                match e.kind {
+                    code::EVENT_SWAP => swaps.push(swap),
+                    code::EVENT_SWAP_FAILED => swap_failures.push(swap),
+                    _ => {}
+                }
             }
             let now = Instant::now();
             if now.saturating_duration_since(last_print) >= Duration::from_millis(500) {
@@ -328,6 +370,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         rms_tracking_error_rad: (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
         valve_fault_cycles: faults,
         processes,
+        swaps,
+        swap_failures,
         recording: None,
     })
 }
@@ -385,15 +429,6 @@ fn recording_report(out: &Path, split: &crate::recording::SplitArgs) -> Result<R
         report.files.push(file.display().to_string());
     }
     Ok(report)
-}
-
-fn variant_name(code: u32) -> &'static str {
-    match code {
-        hydractl_samples::code::VARIANT_PID => "pid",
-        hydractl_samples::code::VARIANT_MFC => "mfc",
-        hydractl_samples::code::VARIANT_HINF => "hinf",
-        _ => "?",
-    }
 }
 
 /// Adds newly seen pids and the restart counts from a status sample.

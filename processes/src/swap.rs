@@ -1,0 +1,131 @@
+//! What a hot swap did to the valve: the supervisor keeps the valve's
+//! recent samples and judges the switch from them.
+
+use std::collections::VecDeque;
+
+/// The valve's recent samples: `(sensor_seq, command, faults)`.
+#[derive(Debug)]
+pub struct ValveLog {
+    entries: VecDeque<(u64, f64, u32)>,
+    capacity: usize,
+}
+
+/// How the valve went through a switch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SwitchQuality {
+    /// Readings around the switch with no fresh command at the valve: a
+    /// sequence number missing, or the valve's stale/invalid guard tripped.
+    pub missed_cycles: u64,
+    /// The largest |command − command one reading before| over the
+    /// command's range, 2, from the switch through the next
+    /// [`TRANSIENT`] − 1 readings: the switch and its transient.
+    pub command_step: f64,
+    /// The largest such step in the `usual` readings before the switch, and
+    /// from the end of the transient to the end of the window: the old and
+    /// the new controller's own period-to-period variation, to judge the
+    /// switch against.
+    pub loop_step_before: f64,
+    pub loop_step_after: f64,
+}
+
+/// Readings from the switch counted as its transient.
+pub const TRANSIENT: u64 = 5;
+
+impl ValveLog {
+    pub fn with_capacity(capacity: usize) -> Self {
+        Self {
+            entries: VecDeque::with_capacity(capacity),
+            capacity,
+        }
+    }
+
+    pub fn push(&mut self, seq: u64, command: f64, faults: u32) {
+        if self.entries.len() == self.capacity {
+            self.entries.pop_front();
+        }
+        self.entries.push_back((seq, command, faults));
+    }
+
+    pub fn newest_seq(&self) -> Option<u64> {
+        self.entries.back().map(|e| e.0)
+    }
+
+    /// Judges the switch at reading `at`: missed cycles over `before`
+    /// readings before it and `after` from it, the loop's own steps over the
+    /// `usual` readings before it; `None` until the log reaches `at + after`.
+    pub fn judge(&self, at: u64, before: u64, after: u64, usual: u64) -> Option<SwitchQuality> {
+        if self.newest_seq()? < at + after {
+            return None;
+        }
+        let window = at.saturating_sub(before)..at + after;
+        let mut fresh = 0;
+        let (mut command_step, mut loop_step_before, mut loop_step_after) = (None, 0.0f64, 0.0f64);
+        let mut previous: Option<(u64, f64)> = None;
+        for &(seq, command, faults) in &self.entries {
+            if window.contains(&seq) && faults == 0 {
+                fresh += 1;
+            }
+            if let Some((_, p_command)) = previous.filter(|(p_seq, _)| p_seq + 1 == seq) {
+                let step = (command - p_command).abs() / 2.0;
+                if seq < at && seq + usual >= at {
+                    loop_step_before = loop_step_before.max(step);
+                } else if seq >= at && seq < at + TRANSIENT {
+                    command_step = Some(command_step.unwrap_or(0.0f64).max(step));
+                } else if seq >= at + TRANSIENT && seq < at + after {
+                    loop_step_after = loop_step_after.max(step);
+                }
+            }
+            previous = Some((seq, command));
+        }
+        let expected = window.end - window.start;
+        Some(SwitchQuality {
+            missed_cycles: expected.saturating_sub(fresh),
+            // No command around the switch at all is a full-range worst case.
+            command_step: command_step.unwrap_or(1.0),
+            loop_step_before,
+            loop_step_after,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_clean_switch_misses_nothing_and_measures_its_step() {
+        let mut log = ValveLog::with_capacity(64);
+        for seq in 0..60 {
+            log.push(seq, if seq < 30 { 0.10 } else { 0.12 }, 0);
+        }
+        assert_eq!(log.judge(30, 10, 40, 20), None, "not yet reached the end of the window");
+        let q = log.judge(30, 10, 20, 20).expect("judged");
+        assert_eq!(q.missed_cycles, 0);
+        assert!((q.command_step - 0.01).abs() < 1e-12);
+        assert_eq!(
+            (q.loop_step_before, q.loop_step_after),
+            (0.0, 0.0),
+            "the command was flat before and after"
+        );
+    }
+
+    #[test]
+    fn a_gap_or_a_tripped_guard_is_a_missed_cycle() {
+        let mut log = ValveLog::with_capacity(64);
+        for seq in (0..60).filter(|&s| s != 31) {
+            log.push(seq, 0.0, u32::from(seq == 35));
+        }
+        let q = log.judge(30, 10, 20, 20).expect("judged");
+        assert_eq!(q.missed_cycles, 2);
+    }
+
+    #[test]
+    fn the_log_keeps_only_its_capacity() {
+        let mut log = ValveLog::with_capacity(4);
+        for seq in 0..10 {
+            log.push(seq, 0.0, 0);
+        }
+        assert_eq!(log.entries.len(), 4);
+        assert_eq!(log.newest_seq(), Some(9));
+    }
+}

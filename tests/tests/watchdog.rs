@@ -1,0 +1,192 @@
+//! The watchdog's hot swap: controller variants replaced while the loop
+//! runs, over iceoryx2 request-response, and the stack's status.
+
+use std::process::Output;
+use std::time::Duration;
+
+use hydractl_bus::PREFIX_ENV;
+use hydractl_system_tests::*;
+use nix::sys::signal::Signal;
+
+fn hydractl_in(scope: &hydractl_bus::RunScope, args: &[&str]) -> Output {
+    hydractl()
+        .args(args)
+        .env(PREFIX_ENV, scope.prefix())
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("hydractl runs")
+}
+
+fn status(scope: &hydractl_bus::RunScope) -> serde_json::Value {
+    let out = hydractl_in(scope, &["status", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("status json")
+}
+
+fn process<'a>(status: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
+    status["processes"]
+        .as_array()
+        .expect("processes")
+        .iter()
+        .find(|p| p["name"] == name)
+        .unwrap_or_else(|| panic!("{name} in {status}"))
+}
+
+#[test]
+fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
+    let _turn = serial();
+    let scope = unique_scope("swap");
+    let dir = scratch_dir("swap");
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &["--duration", "60", "--summary-json", summary.to_str().expect("path")],
+    );
+    assert!(observer.wait_healthy(500, Duration::from_secs(20)), "the loop runs");
+
+    let before = status(&scope);
+    assert_eq!(before["plant"], "simulation");
+    assert_eq!(process(&before, "position")["variant"], "mfc");
+    assert_eq!(process(&before, "torque")["variant"], "pid");
+    for name in [
+        "sensor",
+        "friction",
+        "position",
+        "torque",
+        "valve",
+        "plant",
+        "supervisor",
+    ] {
+        let p = process(&before, name);
+        assert_eq!(p["healthy"], true, "{p}");
+        assert!(p["pid"].as_u64().is_some_and(|pid| pid > 0));
+    }
+    let old_position = process(&before, "position")["pid"].clone();
+
+    observer.drain_valve();
+    let mut faults = 0;
+    for (stage, variant) in [
+        ("position", "pid"),
+        ("torque", "hinf"),
+        ("torque", "pid"),
+        ("position", "mfc"),
+    ] {
+        let out = hydractl_in(&scope, &["swap", stage, variant]);
+        assert!(
+            out.status.success(),
+            "swap {stage} {variant}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("{stage} now runs {variant}")));
+        let now = status(&scope);
+        assert_eq!(process(&now, stage)["variant"], variant, "{now}");
+        while let Ok(Some(v)) = observer.valve.next() {
+            faults += usize::from(v.faults != 0);
+        }
+    }
+    assert_eq!(faults, 0, "the valve never went to neutral");
+    let after = status(&scope);
+    assert_ne!(
+        process(&after, "position")["pid"],
+        old_position,
+        "a new process runs position"
+    );
+
+    // Refusals leave the running controller in charge, and say why.
+    for (args, why) in [
+        (["swap", "position", "mfc"], "already runs mfc"),
+        (["swap", "position", "hinf"], "no variant `hinf`"),
+        (["swap", "valve", "pid"], "no stage `valve`"),
+    ] {
+        let out = hydractl_in(&scope, &args);
+        assert!(!out.status.success());
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(why),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_eq!(process(&status(&scope), "position")["variant"], "mfc");
+
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let swaps = summary["swaps"].as_array().expect("swaps");
+    assert_eq!(swaps.len(), 4, "{summary}");
+    for s in swaps {
+        assert_eq!(s["missed_cycles"], 0, "{s}");
+        // Under 2% of the range, or within the loop's own period-to-period
+        // steps with either controller in charge (with the cascade's gains
+        // on noisy pressures they reach 2–7% without any swap).
+        let step = s["command_step"].as_f64().expect("step");
+        let usual = ["loop_step_before", "loop_step_after"]
+            .map(|k| s[k].as_f64().expect("loop step"))
+            .into_iter()
+            .fold(0.02, f64::max);
+        assert!(step <= usual, "{s}");
+    }
+    assert_eq!(swaps[1]["stage"], "torque");
+    assert_eq!(
+        (swaps[1]["from"].as_str(), swaps[1]["to"].as_str()),
+        (Some("pid"), Some("hinf"))
+    );
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn status_and_swap_say_plainly_when_no_run_is_alive() {
+    let scope = unique_scope("norun");
+    for args in [&["status", "--json"][..], &["swap", "position", "pid"][..]] {
+        let out = hydractl_in(&scope, args);
+        assert!(!out.status.success());
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("no run with prefix"),
+            "{args:?}"
+        );
+    }
+}
+
+#[test]
+fn a_swap_to_a_variant_that_cannot_start_leaves_the_running_one_in_charge() {
+    let _turn = serial();
+    let scope = unique_scope("swapfail");
+    let dir = scratch_dir("swapfail");
+    // The cascade's outer loop on PID, its MFC section unusable.
+    let sim = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
+        .expect("config");
+    let broken = sim.replacen("j_hat = 20.0", "j_hat = -1.0", 1).replacen(
+        "variant = \"mfc\"                     # the rotary paper's cascade",
+        "variant = \"pid\" #",
+        1,
+    );
+    assert_ne!(broken, sim);
+    let config = dir.join("broken_mfc.toml");
+    std::fs::write(&config, broken).expect("write");
+    let observer = Observer::open(&scope);
+    let _run = start_run(
+        &scope,
+        &["--duration", "30", "--config", config.to_str().expect("path")],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    let before = process(&status(&scope), "position")["pid"].clone();
+    let out = hydractl_in(&scope, &["swap", "position", "mfc"]);
+    assert!(!out.status.success());
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        said.contains("exited while starting") && said.contains("pid stays in charge"),
+        "{said}"
+    );
+    let after = status(&scope);
+    assert_eq!(process(&after, "position")["variant"], "pid");
+    assert_eq!(process(&after, "position")["pid"], before);
+    observer.drain_valve();
+    assert!(
+        observer.wait_healthy(300, Duration::from_secs(5)),
+        "the loop carries on"
+    );
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}

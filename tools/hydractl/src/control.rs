@@ -1,0 +1,139 @@
+//! `hydractl swap` and `hydractl status`: talking to a running stack.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Result};
+use hydractl_bus::{quiet_ipc_logging, Bus, CommandClient, Reader, RunScope, PREFIX_ENV};
+use hydractl_samples::{code, name_str, service, SupervisorReply, SupervisorRequest, SupervisorStatus};
+use serde::Serialize;
+
+#[derive(clap::Args)]
+pub struct SwapArgs {
+    /// `position` or `torque`.
+    stage: String,
+    /// position: `pid` or `mfc`; torque: `pid` or `hinf`.
+    variant: String,
+    /// Seconds to wait for the supervisor's answer.
+    #[arg(long, default_value_t = 15.0)]
+    timeout: f64,
+}
+
+#[derive(clap::Args)]
+pub struct StatusArgs {
+    #[arg(long)]
+    json: bool,
+}
+
+fn open_run(node: &str) -> Result<Bus> {
+    quiet_ipc_logging();
+    let scope = RunScope::from_env()?;
+    if !scope.live_node_names()?.iter().any(|n| n == "supervisor") {
+        bail!(
+            "no run with prefix `{}` is alive: start one with `hydractl run` (or set {PREFIX_ENV})",
+            scope.prefix()
+        );
+    }
+    Ok(Bus::open(&scope, node)?)
+}
+
+/// Asks the supervisor to swap a controller while the loop runs, and waits
+/// for the outcome.
+pub fn swap(args: SwapArgs) -> Result<()> {
+    let stage = match args.stage.as_str() {
+        "position" => code::STAGE_POSITION,
+        "torque" => code::STAGE_TORQUE,
+        other => bail!("no stage `{other}`: swap `position` or `torque`"),
+    };
+    let Some(variant) = code::variant_code(&args.variant) else {
+        bail!(
+            "no variant `{}`: `pid`, `mfc` (position) or `hinf` (torque)",
+            args.variant
+        );
+    };
+    let bus = open_run("swap")?;
+    let client: CommandClient<SupervisorRequest, SupervisorReply> =
+        CommandClient::open(&bus, service::SUPERVISOR_COMMAND)?;
+    let pending = client.send(SupervisorRequest { stage, variant })?;
+    if pending.servers() == 0 {
+        bail!("the supervisor is not taking commands");
+    }
+    let deadline = Instant::now() + Duration::from_secs_f64(args.timeout.max(0.1));
+    while Instant::now() < deadline {
+        if let Some(answer) = pending.try_receive()? {
+            let message = name_str(&answer.message);
+            if answer.accepted == 0 {
+                bail!("swap refused: {message}");
+            }
+            return crate::emit(&format!("{message}\n"));
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    bail!("no answer from the supervisor within {} s", args.timeout)
+}
+
+#[derive(Serialize)]
+struct ProcessView {
+    name: String,
+    pid: u32,
+    variant: Option<String>,
+    healthy: bool,
+    restarts: u32,
+}
+
+#[derive(Serialize)]
+struct StatusView {
+    plant: &'static str,
+    processes: Vec<ProcessView>,
+}
+
+/// The supervisor's view of the running stack.
+pub fn status(args: StatusArgs) -> Result<()> {
+    let bus = open_run("status")?;
+    let reader: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 1)?;
+    let deadline = Instant::now() + Duration::from_secs(2);
+    let status = loop {
+        if let Some(s) = reader.latest()? {
+            break s;
+        }
+        if Instant::now() > deadline {
+            bail!("the supervisor published no status within 2 s");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let view = StatusView {
+        plant: if status.plant_is_simulation != 0 {
+            "simulation"
+        } else {
+            "machine"
+        },
+        processes: status.processes[..(status.process_count as usize).min(status.processes.len())]
+            .iter()
+            .map(|p| ProcessView {
+                name: name_str(&p.name).to_owned(),
+                pid: p.pid,
+                variant: Some(name_str(&p.variant).to_owned()).filter(|v| !v.is_empty()),
+                healthy: p.healthy != 0,
+                restarts: p.restarts,
+            })
+            .collect(),
+    };
+    if args.json {
+        return crate::emit(&(serde_json::to_string_pretty(&view)? + "\n"));
+    }
+    let mut text = format!("plant: {}\n", view.plant);
+    text += &format!(
+        "  {:<12} {:>8} {:<10} {:<8} {:>8}\n",
+        "process", "pid", "variant", "health", "restarts"
+    );
+    for p in &view.processes {
+        text += &format!(
+            "  {:<12} {:>8} {:<10} {:<8} {:>8}\n",
+            p.name,
+            p.pid,
+            p.variant.as_deref().unwrap_or("-"),
+            if p.healthy { "healthy" } else { "DOWN" },
+            p.restarts
+        );
+    }
+    crate::emit(&text)
+}
