@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use hydractl_bus::{RunScope, PREFIX_ENV};
-use hydractl_sim::SupervisorConfig;
+use hydractl_sim::{RestartPolicy, SupervisorConfig};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
@@ -69,6 +69,14 @@ pub struct Supervised {
     restart_at: Option<Instant>,
     /// Last time its output advanced.
     pub last_output: Instant,
+    /// The last reading its output answered.
+    pub last_seq: Option<u64>,
+    /// How its last run ended: `true` for a clean exit (status 0).
+    pub exited_cleanly: bool,
+    /// Its restarts within the restart rule's window.
+    restart_times: std::collections::VecDeque<Instant>,
+    /// Why it is left down, when its restart rule says so.
+    pub given_up: Option<String>,
     /// When its input last started flowing again after a pause: a hang is
     /// counted from here too, so a stage whose input was gone is not
     /// declared hung the moment the input returns.
@@ -90,6 +98,10 @@ impl Supervised {
             backoff: Duration::ZERO,
             restart_at: None,
             last_output: now,
+            last_seq: None,
+            exited_cleanly: false,
+            restart_times: std::collections::VecDeque::new(),
+            given_up: None,
             input_resumed: now,
         }
     }
@@ -132,14 +144,15 @@ impl Supervised {
     /// Reaps the child if it exited; true when it did. An error from the
     /// wait says nothing about the child, so it counts as still running.
     pub fn reap(&mut self) -> bool {
-        let exited = match &mut self.child {
-            Some(child) => matches!(child.try_wait(), Ok(Some(_))),
-            None => false,
+        let status = match &mut self.child {
+            Some(child) => child.try_wait().ok().flatten(),
+            None => None,
         };
-        if exited {
+        if let Some(status) = status {
+            self.exited_cleanly = status.success();
             self.child = None;
         }
-        exited
+        status.is_some()
     }
 
     /// Kills a hung child with SIGKILL and reaps it.
@@ -148,11 +161,47 @@ impl Supervised {
             let _ = child.kill();
             let _ = child.wait();
         }
+        self.exited_cleanly = false;
+    }
+
+    /// After it stopped: schedules a restart if its restart rule allows
+    /// one, or leaves it down and says why (in [`Supervised::given_up`]).
+    /// Returns whether a restart is scheduled.
+    pub fn after_stop(&mut self, now: Instant, policy: &SupervisorConfig) -> bool {
+        let rule = policy.restart_rule(self.name);
+        let window = Duration::from_secs_f64(rule.window_s);
+        while self
+            .restart_times
+            .front()
+            .is_some_and(|&t| now.saturating_duration_since(t) > window)
+        {
+            self.restart_times.pop_front();
+        }
+        let refusal = match rule.policy {
+            RestartPolicy::Never => Some("its restart policy is `never`".to_owned()),
+            RestartPolicy::OnFailure if self.exited_cleanly => {
+                Some("it exited cleanly and its restart policy is `on-failure`".to_owned())
+            }
+            _ if self.restart_times.len() >= rule.max_restarts as usize => Some(format!(
+                "it was restarted {} times within {} s (max_restarts)",
+                self.restart_times.len(),
+                rule.window_s
+            )),
+            _ => None,
+        };
+        if let Some(why) = refusal {
+            self.given_up = Some(why);
+            self.restart_at = None;
+            return false;
+        }
+        self.restart_times.push_back(now);
+        self.schedule_restart(now, policy);
+        true
     }
 
     /// Schedules a restart after the back-off, doubling it for next time
     /// unless the process had been up long enough to count as healthy.
-    pub fn schedule_restart(&mut self, now: Instant, policy: &SupervisorConfig) {
+    fn schedule_restart(&mut self, now: Instant, policy: &SupervisorConfig) {
         let initial = Duration::from_millis(policy.restart_backoff_initial_ms);
         let max = Duration::from_millis(policy.restart_backoff_max_ms);
         if self.uptime(now) >= Duration::from_millis(policy.healthy_after_ms) || self.backoff.is_zero() {
@@ -224,5 +273,53 @@ mod tests {
         assert_eq!(s.backoff, Duration::from_millis(10));
         assert!(!s.restart_due(now));
         assert!(s.restart_due(now + Duration::from_secs(3)));
+    }
+
+    #[test]
+    fn restart_rules_refuse_and_say_why() {
+        let mut policy = SupervisorConfig::default();
+        policy.restart.max_restarts = 2;
+        policy.restart.window_s = 10.0;
+        policy.processes.insert(
+            "valve".into(),
+            hydractl_sim::RestartRule {
+                policy: RestartPolicy::OnFailure,
+                ..hydractl_sim::RestartRule::default()
+            },
+        );
+        policy.processes.insert(
+            "plant".into(),
+            hydractl_sim::RestartRule {
+                policy: RestartPolicy::Never,
+                ..hydractl_sim::RestartRule::default()
+            },
+        );
+        let mut friction = Supervised::new("friction", Path::new("/nonexistent"), None);
+        let now = friction.started_at;
+        assert!(friction.after_stop(now, &policy));
+        assert!(friction.after_stop(now + Duration::from_secs(1), &policy));
+        assert!(
+            !friction.after_stop(now + Duration::from_secs(2), &policy),
+            "a third within 10 s"
+        );
+        assert!(friction.given_up.as_deref().is_some_and(|w| w.contains("max_restarts")));
+        let mut friction = Supervised::new("friction", Path::new("/nonexistent"), None);
+        assert!(friction.after_stop(now, &policy));
+        assert!(friction.after_stop(now + Duration::from_secs(1), &policy));
+        assert!(
+            friction.after_stop(now + Duration::from_secs(12), &policy),
+            "the window has moved on"
+        );
+
+        let mut valve = Supervised::new("valve", Path::new("/nonexistent"), None);
+        valve.exited_cleanly = true;
+        assert!(!valve.after_stop(now, &policy));
+        valve.exited_cleanly = false;
+        valve.given_up = None;
+        assert!(valve.after_stop(now, &policy), "a crash is a failure");
+
+        let mut plant = Supervised::new("plant", Path::new("/nonexistent"), None);
+        assert!(!plant.after_stop(now, &policy));
+        assert!(plant.given_up.as_deref().is_some_and(|w| w.contains("never")));
     }
 }

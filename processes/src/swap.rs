@@ -46,6 +46,12 @@ impl ValveLog {
         self.entries.push_back((seq, command, faults));
     }
 
+    /// The first reading after `seq` at which the valve was made safe (a
+    /// fault flag, neutral).
+    pub fn first_fault_after(&self, seq: u64) -> Option<u64> {
+        self.entries.iter().find(|e| e.0 > seq && e.2 != 0).map(|e| e.0)
+    }
+
     pub fn newest_seq(&self) -> Option<u64> {
         self.entries.back().map(|e| e.0)
     }
@@ -117,6 +123,8 @@ mod tests {
         }
         let q = log.judge(30, 10, 20, 20).expect("judged");
         assert_eq!(q.missed_cycles, 2);
+        assert_eq!(log.first_fault_after(30), Some(35));
+        assert_eq!(log.first_fault_after(35), None);
     }
 
     #[test]

@@ -71,7 +71,9 @@ fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
 fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
     let _turn = serial();
     let scope = unique_scope("kill");
-    let mut run = start_run(&scope, &[]);
+    let dir = scratch_dir("kill");
+    let summary = dir.join("summary.json");
+    let mut run = start_run(&scope, &["--summary-json", summary.to_str().expect("path")]);
     {
         let observer = Observer::open(&scope);
         assert!(observer.wait_healthy(200, Duration::from_secs(10)), "the loop starts");
@@ -126,6 +128,21 @@ fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(10)).success());
     assert!(!scope.has_files(), "nothing left after the stop");
+    // Each kill is in the summary, with how long each step took.
+    let summary = json(&summary);
+    let faults = summary["faults"].as_array().expect("faults");
+    let names: Vec<&str> = faults.iter().filter_map(|f| f["process"].as_str()).collect();
+    assert_eq!(names, ["friction", "position", "torque"], "{summary}");
+    for f in faults {
+        assert_eq!(f["kind"], "crash");
+        assert!(f["detected_after_ms"].as_f64().is_some_and(|ms| ms < 50.0), "{f}");
+        assert!(f["restarted_after_ms"].as_f64().is_some_and(|ms| ms < 1000.0), "{f}");
+        // The valve holds its last command from the first reading without a
+        // fresh one, and goes neutral when its stale guard trips, 3 periods
+        // on (a reading or two later when the paused plant waits for it).
+        assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 6), "{f}");
+    }
+    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]

@@ -190,3 +190,53 @@ fn a_swap_to_a_variant_that_cannot_start_leaves_the_running_one_in_charge() {
     drop(observer);
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_process_whose_rule_says_never_stays_down_with_the_valve_neutral() {
+    let _turn = serial();
+    let scope = unique_scope("never");
+    let dir = scratch_dir("never");
+    let sim = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
+        .expect("config");
+    let config = dir.join("never.toml");
+    std::fs::write(&config, sim + "\n[supervisor.processes.friction]\npolicy = \"never\"\n").expect("write");
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &[
+            "--duration",
+            "30",
+            "--config",
+            config.to_str().expect("path"),
+            "--summary-json",
+            summary.to_str().expect("path"),
+        ],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    let pid = observer.pid_of("friction", Duration::from_secs(2)).expect("friction");
+    signal(pid, Signal::SIGKILL);
+    std::thread::sleep(Duration::from_millis(500));
+    let now = status(&scope);
+    assert_eq!(process(&now, "friction")["healthy"], false, "{now}");
+    assert_eq!(process(&now, "friction")["restarts"], 0, "{now}");
+    // No friction, no command: the valve stays neutral and says why.
+    observer.drain_valve();
+    std::thread::sleep(Duration::from_millis(100));
+    let mut seen = 0;
+    while let Ok(Some(v)) = observer.valve.next() {
+        seen += 1;
+        assert!(v.command == 0.0 && v.faults != 0, "{v:?}");
+    }
+    assert!(seen > 0, "the valve still reports");
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let faults = summary["faults"].as_array().expect("faults");
+    assert_eq!(faults.len(), 1, "{summary}");
+    assert_eq!(faults[0]["process"], "friction");
+    assert!(faults[0]["restarted_after_ms"].is_null(), "{summary}");
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}

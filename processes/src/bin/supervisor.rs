@@ -40,21 +40,43 @@ impl Heartbeats {
         })
     }
 
-    /// Which of the pipeline's outputs advanced since the last call, in
-    /// [`PIPELINE`] order; keeps the plant's last reading for a restart.
-    fn advanced(&self, last_reading: &mut Option<PlantReading>) -> Result<[bool; 6]> {
+    /// The newest reading each of the pipeline's outputs answered since the
+    /// last call (`None`: it did not advance), in [`PIPELINE`] order; keeps
+    /// the plant's last reading for a restart.
+    fn advanced(&self, last_reading: &mut Option<PlantReading>) -> Result<[Option<Answer>; 6]> {
         let reading = self.plant.latest()?;
         if reading.is_some() {
             *last_reading = reading;
         }
         Ok([
-            reading.is_some(),
-            self.sensor.latest()?.is_some(),
-            self.friction.latest()?.is_some(),
-            self.position.latest()?.is_some(),
-            self.torque.latest()?.is_some(),
-            self.valve.latest()?.is_some(),
+            reading.map(|r| Answer::new(r.sensor_seq, r.sensor_time_ns)),
+            self.sensor
+                .latest()?
+                .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
+            self.friction
+                .latest()?
+                .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
+            self.position
+                .latest()?
+                .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
+            self.torque
+                .latest()?
+                .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
+            self.valve.latest()?.map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
         ])
+    }
+}
+
+/// A process's newest output: the reading it answered, and when.
+#[derive(Debug, Clone, Copy)]
+struct Answer {
+    seq: u64,
+    time_ns: u64,
+}
+
+impl Answer {
+    fn new(seq: u64, time_ns: u64) -> Self {
+        Self { seq, time_ns }
     }
 }
 
@@ -182,6 +204,11 @@ fn supervise(
     let own_pid = std::process::id();
     let mut last_status = Instant::now();
     let mut status_seq = 0u64;
+    // A fault is published once its process is back (or given up on), with
+    // how long each step took.
+    let mut faults: Vec<Option<Fault>> = vec![None; children.len()];
+    let mut last_answer_ns = vec![clock::now_ns(); children.len()];
+    let mut restarting = vec![true; children.len()];
     let mut failure = None;
     run_loop(&[], Some(Duration::from_millis(5)), |_| {
         hydractl_bus::guarded(&mut failure, || -> Result<()> {
@@ -193,39 +220,76 @@ fn supervise(
                 *p = now.saturating_duration_since(c.last_output) >= hung_after / 2;
             }
             for i in 0..children.len() {
-                if advanced[i] {
+                if let Some(answer) = advanced[i] {
                     children[i].last_output = now;
+                    children[i].last_seq = Some(answer.seq);
+                    last_answer_ns[i] = answer.time_ns;
+                    // Back after a fault: the fault's account is complete.
+                    if let Some(fault) = faults[i].take() {
+                        swaps.publish_fault(children[i].name, fault, Some(now))?;
+                    }
                 }
                 // Input back after a pause: measure a hang from now on.
-                if i > 0 && advanced[i - 1] && paused[i - 1] {
+                if i > 0 && advanced[i - 1].is_some() && paused[i - 1] {
                     children[i].input_resumed = now;
                 }
             }
             let mut cleanup_needed = false;
             for i in 0..children.len() {
                 // Hung: running past its grace, its input flowing (the plant
-                // paces itself), and no output for `hung_after`.
-                let input_flowing =
-                    i == 0 || now.saturating_duration_since(children[i - 1].last_output) < hung_after / 2;
+                // paces itself), and no output for `hung_after`. The input
+                // flows when its producer's outputs do, by their own
+                // timestamps: a producer just restarted has none yet.
+                let input_flowing = i == 0
+                    || Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[i - 1])) < hung_after / 2;
                 let child = &mut children[i];
                 let quiet_since = child.last_output.max(child.input_resumed);
+                // Silent since its last output's own timestamp: the
+                // supervisor's tick would hide up to 5 ms of it.
+                let (pid, silent_for, last_seq) = (
+                    child.pid().unwrap_or(0),
+                    Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[i])),
+                    child.last_seq,
+                );
+                let fault = |kind| Fault {
+                    kind,
+                    pid,
+                    detected_at: now,
+                    silent_for,
+                    last_seq,
+                };
                 if child.reap() {
+                    faults[i] = Some(fault(code::EVENT_CRASH));
                     cleanup_needed = true;
-                    child.schedule_restart(now, policy);
+                    restarting[i] = child.after_stop(now, policy);
                 } else if child.is_running()
                     && child.uptime(now) > startup_grace
                     && input_flowing
                     && now.saturating_duration_since(quiet_since) > hung_after
                 {
+                    faults[i] = Some(fault(code::EVENT_HANG));
                     child.kill_hung();
                     cleanup_needed = true;
-                    child.schedule_restart(now, policy);
+                    restarting[i] = child.after_stop(now, policy);
+                }
+            }
+            // A process left down: its fault's account ends here.
+            for i in 0..children.len() {
+                if !std::mem::replace(&mut restarting[i], true) {
+                    if let Some(fault) = faults[i].take() {
+                        let why = children[i].given_up.clone().unwrap_or_default();
+                        eprintln!("supervisor: {} is left down: {why}", children[i].name);
+                        swaps.publish_fault(children[i].name, fault, None)?;
+                    }
                 }
             }
             if let Some(r) = recorder.as_mut() {
                 if r.child.reap() {
                     cleanup_needed = true;
-                    r.child.schedule_restart(now, policy);
+                    if !r.child.after_stop(now, policy) {
+                        let why = r.child.given_up.clone().unwrap_or_default();
+                        eprintln!("supervisor: the recorder is left down: {why}");
+                    }
                 }
             }
             if cleanup_needed {
@@ -321,6 +385,18 @@ fn status_of(
     }
     status.process_count = count.min(MAX_PROCESSES) as u32;
     status
+}
+
+/// A process that crashed or hung, until it is back.
+#[derive(Debug, Clone, Copy)]
+struct Fault {
+    kind: u32,
+    pid: u32,
+    detected_at: Instant,
+    /// From its last output to the detection.
+    silent_for: Duration,
+    /// The last reading it answered.
+    last_seq: Option<u64>,
 }
 
 /// Hot swaps of the position or torque controller, asked for over
@@ -602,6 +678,31 @@ impl Swaps {
             code::variant_code(swap.from).unwrap_or(0),
             &message,
         )
+    }
+
+    /// A fault's account, once its process answers again: how long the
+    /// detection, the valve's going safe and the restart took.
+    fn publish_fault(&mut self, process: &str, fault: Fault, back_at: Option<Instant>) -> Result<()> {
+        let valve_safe = fault
+            .last_seq
+            .and_then(|seq| self.log.first_fault_after(seq).map(|at| at - seq))
+            .unwrap_or(u64::MAX);
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: fault.last_seq.unwrap_or(0),
+            valve_safe_after_periods: valve_safe,
+            detected_after_ns: fault.silent_for.as_nanos() as u64,
+            restarted_after_ns: back_at.map_or(u64::MAX, |at| {
+                at.saturating_duration_since(fault.detected_at).as_nanos() as u64
+            }),
+            kind: fault.kind,
+            pid: fault.pid,
+            process: fixed_name(process),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
     }
 
     fn publish_event(&mut self, kind: u32, swap: &SwapInProgress, at_seq: u64, quality: SwitchQuality) -> Result<()> {

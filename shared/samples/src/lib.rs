@@ -269,10 +269,12 @@ pub struct SupervisorEvent {
     /// the switch (old controller) and after its transient (new one).
     pub loop_step_before: f64,
     pub loop_step_after: f64,
+    /// Fault: readings from the last one the process answered to the first
+    /// with the valve made safe (u64::MAX: the valve never needed to be).
+    pub valve_safe_after_periods: u64,
     /// Fault: from the process's last output to the supervisor seeing it.
     pub detected_after_ns: u64,
-    /// Fault: from the detection to the new process's first output (0 if
-    /// not restarted).
+    /// Fault: from the detection to the new process's first output.
     pub restarted_after_ns: u64,
     /// [`code`] `EVENT_*`.
     pub kind: u32,
@@ -446,7 +448,7 @@ mod tests {
         assert_eq!(size_of::<SupervisorStatus>(), 16 + MAX_PROCESSES * 48 + 8);
         assert_eq!(size_of::<RecorderStatus>(), 7 * 8);
         assert_eq!(size_of::<Handover>(), 5 * 8);
-        assert_eq!(size_of::<SupervisorEvent>(), 9 * 8 + 8 + 48);
+        assert_eq!(size_of::<SupervisorEvent>(), 10 * 8 + 8 + 48);
         assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 176);
     }
 

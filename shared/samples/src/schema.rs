@@ -198,7 +198,7 @@ recordable!(
     SupervisorEvent,
     "SupervisorEvent",
     stage_time_ns,
-    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nuint8[16] process\nuint8[16] from\nuint8[16] to\n"
+    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 valve_safe_after_periods\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nuint8[16] process\nuint8[16] from\nuint8[16] to\n"
 );
 recordable!(
     BenchSample,

@@ -216,6 +216,10 @@ pub struct SupervisorConfig {
     pub healthy_after_ms: u64,
     /// How long a stopping process may take before it is killed.
     pub stop_timeout_ms: u64,
+    /// When a process that stopped is started again, for every process…
+    pub restart: RestartRule,
+    /// …unless `[supervisor.processes.NAME]` says otherwise for one.
+    pub processes: std::collections::BTreeMap<String, RestartRule>,
 }
 
 impl Default for SupervisorConfig {
@@ -226,6 +230,51 @@ impl Default for SupervisorConfig {
             restart_backoff_max_ms: 2000,
             healthy_after_ms: 5000,
             stop_timeout_ms: 1000,
+            restart: RestartRule::default(),
+            processes: std::collections::BTreeMap::new(),
+        }
+    }
+}
+
+/// The processes a supervisor's restart rules may name.
+pub const SUPERVISED_PROCESSES: [&str; 7] = ["plant", "sensor", "friction", "position", "torque", "valve", "recorder"];
+
+impl SupervisorConfig {
+    /// The restart rule of `process`.
+    pub fn restart_rule(&self, process: &str) -> &RestartRule {
+        self.processes.get(process).unwrap_or(&self.restart)
+    }
+}
+
+/// Whether a stopped process is started again.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RestartPolicy {
+    /// Whatever the reason it stopped.
+    #[default]
+    Always,
+    /// When it crashed, was killed or hung; not after a clean exit (0).
+    OnFailure,
+    /// Never: it stays down (a controller's valve stays neutral).
+    Never,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RestartRule {
+    pub policy: RestartPolicy,
+    /// At most this many restarts within `window_s`; past it, the process
+    /// is left down and the supervisor says so.
+    pub max_restarts: u32,
+    pub window_s: f64,
+}
+
+impl Default for RestartRule {
+    fn default() -> Self {
+        Self {
+            policy: RestartPolicy::Always,
+            max_restarts: 20,
+            window_s: 60.0,
         }
     }
 }
@@ -371,6 +420,30 @@ impl Config {
                 });
             }
         }
+        for name in sup.processes.keys() {
+            if !SUPERVISED_PROCESSES.contains(&name.as_str()) {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "[supervisor.processes.{name}]: no process `{name}`; the processes are {}",
+                        SUPERVISED_PROCESSES.join(", ")
+                    ),
+                });
+            }
+        }
+        for (name, rule) in
+            std::iter::once(("restart", &sup.restart)).chain(sup.processes.iter().map(|(n, r)| (n.as_str(), r)))
+        {
+            if !(rule.window_s.is_finite() && rule.window_s > 0.0) {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "{name}: window_s must be a positive number of seconds, got {}",
+                        rule.window_s
+                    ),
+                });
+            }
+        }
         if sup.restart_backoff_max_ms < sup.restart_backoff_initial_ms {
             return Err(ConfigError::Supervisor {
                 path: path.to_owned(),
@@ -400,6 +473,22 @@ mod tests {
         let c = Config::parse(DEFAULT_SIM_TOML, Path::new("config/sim.toml")).expect("valid");
         assert_eq!(c.timing.substeps(), 10);
         assert!(c.effects.0.is_empty(), "the default plant has no effects");
+    }
+
+    #[test]
+    fn restart_rules_parse_and_bad_ones_are_named() {
+        let text =
+            format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valve]\npolicy = \"on-failure\"\nmax_restarts = 3\n");
+        let c = Config::parse(&text, Path::new("x.toml")).expect("valid");
+        assert_eq!(c.supervisor.restart_rule("valve").policy, RestartPolicy::OnFailure);
+        assert_eq!(c.supervisor.restart_rule("valve").max_restarts, 3);
+        assert_eq!(c.supervisor.restart_rule("sensor").policy, RestartPolicy::Always);
+        let unknown = format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valv]\npolicy = \"never\"\n");
+        let e = Config::parse(&unknown, Path::new("x.toml")).expect_err("no such process");
+        assert!(e.to_string().contains("supervisor.processes.valv"), "{e}");
+        let bad = format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valve]\npolicy = \"sometimes\"\n");
+        let e = Config::parse(&bad, Path::new("x.toml")).expect_err("no such policy");
+        assert!(e.to_string().contains("sometimes"), "{e}");
     }
 
     #[test]

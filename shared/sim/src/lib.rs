@@ -6,7 +6,10 @@ pub mod metrics;
 pub mod simulator;
 pub mod stack;
 
-pub use config::{Config, ConfigError, PositionVariant, StallPolicy, Structure, SupervisorConfig, TorqueVariant};
+pub use config::{
+    Config, ConfigError, PositionVariant, RestartPolicy, RestartRule, StallPolicy, Structure, SupervisorConfig,
+    TorqueVariant, SUPERVISED_PROCESSES,
+};
 pub use hydractl_control::Reference;
 pub use simulator::{build_plant, simulate, write_csv, Record, SimError, SimulationRun, Summary};
 pub use stack::ControlStack;

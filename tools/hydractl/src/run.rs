@@ -103,6 +103,8 @@ struct RunSummary {
     /// Valve samples published in neutral with a fault flag.
     valve_fault_cycles: u64,
     processes: Vec<ProcessSummary>,
+    /// Processes that crashed or hung, and how the stack recovered.
+    faults: Vec<FaultSummary>,
     /// Controller swaps while the run ran, as the supervisor judged them.
     swaps: Vec<SwapSummary>,
     /// Swaps asked for that did not happen: the running controller stayed.
@@ -122,6 +124,24 @@ struct RecordingReport {
     /// Sequence numbers the publishers skipped themselves (a stage that took
     /// the newest reading): in the data, not lost by the recording.
     gaps: u64,
+}
+
+#[derive(Serialize)]
+struct FaultSummary {
+    process: String,
+    /// `crash` (it exited) or `hang` (no output while its input flowed).
+    kind: &'static str,
+    pid: u32,
+    /// The last reading it answered.
+    last_seq: u64,
+    /// From its last output to the supervisor seeing the fault.
+    detected_after_ms: f64,
+    /// Readings from the last one it answered to the first with the valve
+    /// made safe; null when the valve never had to be (it had nothing stale).
+    valve_safe_after_periods: Option<u64>,
+    /// From the detection to the new process's first output; null when
+    /// its restart rule left it down.
+    restarted_after_ms: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -248,7 +268,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let (mut outer_variant, mut inner_variant) = ("?", "?");
     let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 4)?;
     let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
-    let (mut swaps, mut swap_failures) = (Vec::new(), Vec::new());
+    let (mut swaps, mut swap_failures, mut faults_seen) = (Vec::new(), Vec::new(), Vec::new());
     let mut failure = None;
     let exit = run_loop(&[], Some(Duration::from_millis(10)), |_| {
         let mut step = || -> Result<Flow> {
@@ -302,6 +322,17 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 match e.kind {
                     code::EVENT_SWAP => swaps.push(swap),
                     code::EVENT_SWAP_FAILED => swap_failures.push(swap),
+                    code::EVENT_CRASH | code::EVENT_HANG => faults_seen.push(FaultSummary {
+                        process: name_str(&e.process).to_owned(),
+                        kind: if e.kind == code::EVENT_CRASH { "crash" } else { "hang" },
+                        pid: e.pid,
+                        last_seq: e.sensor_seq,
+                        detected_after_ms: e.detected_after_ns as f64 * 1e-6,
+                        valve_safe_after_periods: (e.valve_safe_after_periods != u64::MAX)
+                            .then_some(e.valve_safe_after_periods),
+                        restarted_after_ms: (e.restarted_after_ns != u64::MAX)
+                            .then_some(e.restarted_after_ns as f64 * 1e-6),
+                    }),
                     _ => {}
                 }
             }
@@ -370,6 +401,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         rms_tracking_error_rad: (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
         valve_fault_cycles: faults,
         processes,
+        faults: faults_seen,
         swaps,
         swap_failures,
         recording: None,
