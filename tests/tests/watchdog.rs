@@ -240,3 +240,52 @@ fn a_process_whose_rule_says_never_stays_down_with_the_valve_neutral() {
     drop(observer);
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_stopped_controller_is_found_hung_killed_and_restarted() {
+    let _turn = serial();
+    let scope = unique_scope("sigstop");
+    let dir = scratch_dir("sigstop");
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &["--duration", "30", "--summary-json", summary.to_str().expect("path")],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    let pid = observer.pid_of("torque", Duration::from_secs(2)).expect("torque");
+    signal(pid, Signal::SIGSTOP);
+    let deadline = std::time::Instant::now() + Duration::from_secs(3);
+    let mut restarted = None;
+    while restarted.is_none() && std::time::Instant::now() < deadline {
+        restarted = observer
+            .pid_of("torque", Duration::from_millis(100))
+            .filter(|&p| p != pid);
+    }
+    assert!(restarted.is_some(), "a new torque process");
+    observer.drain_valve();
+    assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop resumes");
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let faults = summary["faults"].as_array().expect("faults");
+    assert_eq!(faults.len(), 1, "{summary}");
+    assert_eq!(
+        (faults[0]["process"].as_str(), faults[0]["kind"].as_str()),
+        (Some("torque"), Some("hang"))
+    );
+    // Hung: no output for `hung_after_ms` (50) while its input flowed.
+    assert!(
+        faults[0]["detected_after_ms"]
+            .as_f64()
+            .is_some_and(|ms| (45.0..200.0).contains(&ms)),
+        "{summary}"
+    );
+    assert!(
+        faults[0]["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 6),
+        "{summary}"
+    );
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -3,8 +3,9 @@
 //! command derived from them, and integrates one period with it, as the
 //! offline simulator does. A command that never comes in time is counted
 //! as a deadline miss and the valve holds its last command, as a real valve
-//! holds its current. When the computer stalls, the plant pauses or catches
-//! up, as `timing.stall_policy` says.
+//! holds its current; with none for longer than the valve guard's age, the
+//! valve amplifier's own watchdog drives it to neutral. When the computer
+//! stalls, the plant pauses or catches up, as `timing.stall_policy` says.
 
 use std::time::{Duration, Instant};
 
@@ -45,6 +46,11 @@ fn main() -> Result<()> {
 
     let mut command = 0.0;
     let mut late_commands = 0u64;
+    // The valve amplifier's own watchdog: with no fresh command for longer
+    // than the valve process's guard allows, the spool is driven to
+    // neutral (a dead valve process must not leave it open).
+    let amplifier_timeout = config.control.valve_guard.max_age_periods + 1;
+    let mut without_command = 0u64;
     let mut loop_running = false;
     let mut next_tick = Instant::now();
     loop {
@@ -100,8 +106,13 @@ fn main() -> Result<()> {
         // Before the first command the stages are still starting: not a miss.
         if fresh {
             loop_running = true;
+            without_command = 0;
         } else if loop_running {
             late_commands += 1;
+            without_command += 1;
+            if without_command > amplifier_timeout {
+                command = 0.0;
+            }
         }
         plant.advance(command, substeps);
         next_tick += period;

@@ -214,10 +214,12 @@ fn supervise(
         hydractl_bus::guarded(&mut failure, || -> Result<()> {
             let now = Instant::now();
             let advanced = heartbeats.advanced(&mut last_reading)?;
-            // Whether each output had paused, before this round's news.
+            // Whether each output had paused, before this round's news, by
+            // its own timestamps (a just-restarted process has none yet).
+            let now_ns = clock::now_ns();
             let mut paused = [false; PIPELINE.len()];
-            for (p, c) in paused.iter_mut().zip(children.iter()) {
-                *p = now.saturating_duration_since(c.last_output) >= hung_after / 2;
+            for (p, last_ns) in paused.iter_mut().zip(&last_answer_ns) {
+                *p = Duration::from_nanos(now_ns.saturating_sub(*last_ns)) >= hung_after / 2;
             }
             for i in 0..children.len() {
                 if let Some(answer) = advanced[i] {

@@ -1,0 +1,139 @@
+//! Fault injection: `kill -9` of every process of the loop in turn, at
+//! seeded random moments, a hundred times in one run. Each time the fault
+//! is detected, the valve is made safe (for a controller), the process is
+//! back and the loop resumes; the run's summary accounts for every kill.
+
+use std::time::{Duration, Instant};
+
+use hydractl_samples::fault;
+use hydractl_system_tests::*;
+use nix::sys::signal::Signal;
+
+const KILLS: usize = 100;
+const PROCESSES: [&str; 6] = ["plant", "sensor", "friction", "position", "torque", "valve"];
+
+/// A small seeded generator: the same moments on every run.
+struct Lcg(u64);
+
+impl Lcg {
+    fn below(&mut self, n: u64) -> u64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 33) % n
+    }
+}
+
+#[test]
+fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
+    let _turn = serial();
+    let scope = unique_scope("kill100");
+    let dir = scratch_dir("kill100");
+    // Kills come faster than the default rules expect of a healthy machine.
+    let sim = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
+        .expect("config");
+    let config = sim
+        .replacen("healthy_after_ms = 5000", "healthy_after_ms = 100", 1)
+        .replacen("max_restarts = 20", "max_restarts = 1000", 1);
+    assert_ne!(config, sim);
+    let config_path = dir.join("kill100.toml");
+    std::fs::write(&config_path, config).expect("write");
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &[
+            "--config",
+            config_path.to_str().expect("path"),
+            "--summary-json",
+            summary.to_str().expect("path"),
+        ],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    let mut rng = Lcg(2026);
+    let mut killed: Vec<(&str, u32)> = Vec::new();
+    let mut last_pid = [0u32; PROCESSES.len()];
+    for k in 0..KILLS {
+        let which = if k < 2 * PROCESSES.len() {
+            k % PROCESSES.len()
+        } else {
+            rng.below(PROCESSES.len() as u64) as usize
+        };
+        let name = PROCESSES[which];
+        // The current process, not the one killed last time (the status
+        // is published every 100 ms).
+        let deadline = Instant::now() + Duration::from_secs(3);
+        let pid = loop {
+            let pid = observer.pid_of(name, Duration::from_millis(50));
+            if let Some(pid) = pid.filter(|&p| p != last_pid[which]) {
+                break pid;
+            }
+            assert!(Instant::now() < deadline, "kill {k}: {name} is not back");
+        };
+        std::thread::sleep(Duration::from_millis(rng.below(40)));
+        observer.drain_valve();
+        signal(pid, Signal::SIGKILL);
+        last_pid[which] = pid;
+        killed.push((name, pid));
+        if matches!(name, "friction" | "position" | "torque") {
+            // A dead controller: the valve goes neutral, flagged stale.
+            let since = Instant::now();
+            let mut safe = false;
+            while !safe && since.elapsed() < Duration::from_secs(1) {
+                while let Ok(Some(v)) = observer.valve.next() {
+                    if v.faults & fault::STALE != 0 && v.command == 0.0 {
+                        safe = true;
+                        break;
+                    }
+                }
+            }
+            assert!(safe, "kill {k}: {name}: the valve did not go neutral");
+        }
+        assert!(
+            observer.wait_healthy(50, Duration::from_secs(5)),
+            "kill {k}: {name}: the loop did not resume"
+        );
+    }
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let faults = summary["faults"].as_array().expect("faults");
+    let accounted: Vec<(&str, u32)> = faults
+        .iter()
+        .map(|f| {
+            (
+                f["process"].as_str().unwrap_or("?"),
+                f["pid"].as_u64().unwrap_or(0) as u32,
+            )
+        })
+        .collect();
+    assert_eq!(accounted, killed, "every kill, and nothing else, is a fault");
+    let mut restart_ms: Vec<f64> = faults.iter().filter_map(|f| f["restarted_after_ms"].as_f64()).collect();
+    assert_eq!(restart_ms.len(), KILLS, "every process came back");
+    restart_ms.sort_by(f64::total_cmp);
+    eprintln!(
+        "restarted after: median {:.1} ms, 95th percentile {:.1} ms, max {:.1} ms",
+        restart_ms[KILLS / 2],
+        restart_ms[KILLS * 95 / 100],
+        restart_ms[KILLS - 1]
+    );
+    // The first back-off is 30 ms (after the valve guard trips), then the
+    // process starts. Here the slowest of a hundred took 75-89 ms; a loaded
+    // CI machine is given 100 ms for the 95th percentile, 200 ms for the
+    // slowest.
+    assert!(
+        restart_ms[KILLS * 95 / 100] < 100.0,
+        "back within 100 ms: {restart_ms:?}"
+    );
+    assert!(restart_ms[KILLS - 1] < 200.0, "back within 200 ms: {restart_ms:?}");
+    for f in faults {
+        assert_eq!(f["kind"], "crash", "{f}");
+        if matches!(f["process"].as_str(), Some("friction" | "position" | "torque")) {
+            assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 6), "{f}");
+        }
+    }
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
