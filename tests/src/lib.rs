@@ -198,3 +198,21 @@ impl Observer {
         while let Ok(Some(_)) = self.valve.next() {}
     }
 }
+
+/// A JSON file a run wrote (its summary).
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// `config/sim.toml` changed by `edit`, written to `dir/name`, for a test
+/// that needs other settings. The edit must change something.
+pub fn config_from_default(dir: &Path, name: &str, edit: impl FnOnce(&str) -> String) -> PathBuf {
+    let default = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
+        .expect("config/sim.toml");
+    let edited = edit(&default);
+    assert_ne!(edited, default, "the edit of {name} changed nothing");
+    let path = dir.join(name);
+    std::fs::write(&path, edited).expect("write the config");
+    path
+}

@@ -31,14 +31,10 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
     let scope = unique_scope("kill100");
     let dir = scratch_dir("kill100");
     // Kills come faster than the default rules expect of a healthy machine.
-    let sim = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
-        .expect("config");
-    let config = sim
-        .replacen("healthy_after_ms = 5000", "healthy_after_ms = 100", 1)
-        .replacen("max_restarts = 20", "max_restarts = 1000", 1);
-    assert_ne!(config, sim);
-    let config_path = dir.join("kill100.toml");
-    std::fs::write(&config_path, config).expect("write");
+    let config_path = config_from_default(&dir, "kill100.toml", |sim| {
+        sim.replacen("healthy_after_ms = 5000", "healthy_after_ms = 100", 1)
+            .replacen("max_restarts = 20", "max_restarts = 1000", 1)
+    });
     let summary = dir.join("summary.json");
     let observer = Observer::open(&scope);
     let mut run = start_run(
@@ -97,8 +93,7 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
     }
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let summary: serde_json::Value = read_json(&summary);
     let faults = summary["faults"].as_array().expect("faults");
     let accounted: Vec<(&str, u32)> = faults
         .iter()

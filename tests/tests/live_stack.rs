@@ -6,10 +6,6 @@ use hydractl_samples::fault;
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
 
-fn json(path: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).expect("summary")).expect("json")
-}
-
 #[test]
 fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
     let _turn = serial();
@@ -28,7 +24,7 @@ fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
         .output()
         .expect("sim runs");
     assert!(sim.status.success());
-    let (live, offline) = (json(&live), json(&offline));
+    let (live, offline) = (read_json(&live), read_json(&offline));
     let cycles = live["cycles"].as_u64().expect("cycles");
     assert!(cycles >= 9_500, "{live}");
     for key in ["p50", "p99", "p999", "max"] {
@@ -129,7 +125,7 @@ fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
     assert!(wait_exit(&mut run.0, Duration::from_secs(10)).success());
     assert!(!scope.has_files(), "nothing left after the stop");
     // Each kill is in the summary, with how long each step took.
-    let summary = json(&summary);
+    let summary = read_json(&summary);
     let faults = summary["faults"].as_array().expect("faults");
     let names: Vec<&str> = faults.iter().filter_map(|f| f["process"].as_str()).collect();
     assert_eq!(names, ["friction", "position", "torque"], "{summary}");
@@ -201,7 +197,7 @@ fn a_start_over_the_files_of_a_killed_run_works() {
         Duration::from_secs(30),
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(json(&summary)["cycles"].as_u64().expect("cycles") > 1_500);
+    assert!(read_json(&summary)["cycles"].as_u64().expect("cycles") > 1_500);
     assert!(!scope.has_files());
     std::fs::remove_dir_all(dir).ok();
 }

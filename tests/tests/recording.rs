@@ -189,8 +189,7 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
     drop(late);
     witness.poll();
     assert!(wait_exit(&mut run.0, Duration::from_secs(1)).success());
-    let run: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary_path).expect("summary")).expect("json");
+    let run: serde_json::Value = read_json(&summary_path);
     let cycles = run["cycles"].as_u64().expect("cycles");
     assert!(cycles >= 9_500, "{run}");
     assert!(run["processes"]

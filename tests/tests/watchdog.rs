@@ -111,8 +111,7 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
 
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let summary: serde_json::Value = read_json(&summary);
     let swaps = summary["swaps"].as_array().expect("swaps");
     assert_eq!(swaps.len(), 4, "{summary}");
     for s in swaps {
@@ -155,16 +154,13 @@ fn a_swap_to_a_variant_that_cannot_start_leaves_the_running_one_in_charge() {
     let scope = unique_scope("swapfail");
     let dir = scratch_dir("swapfail");
     // The cascade's outer loop on PID, its MFC section unusable.
-    let sim = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
-        .expect("config");
-    let broken = sim.replacen("j_hat = 20.0", "j_hat = -1.0", 1).replacen(
-        "variant = \"mfc\"                     # the rotary paper's cascade",
-        "variant = \"pid\" #",
-        1,
-    );
-    assert_ne!(broken, sim);
-    let config = dir.join("broken_mfc.toml");
-    std::fs::write(&config, broken).expect("write");
+    let config = config_from_default(&dir, "broken_mfc.toml", |sim| {
+        sim.replacen("j_hat = 20.0", "j_hat = -1.0", 1).replacen(
+            "variant = \"mfc\"                     # the rotary paper's cascade",
+            "variant = \"pid\" #",
+            1,
+        )
+    });
     let observer = Observer::open(&scope);
     let _run = start_run(
         &scope,
@@ -196,10 +192,9 @@ fn a_process_whose_rule_says_never_stays_down_with_the_valve_neutral() {
     let _turn = serial();
     let scope = unique_scope("never");
     let dir = scratch_dir("never");
-    let sim = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml"))
-        .expect("config");
-    let config = dir.join("never.toml");
-    std::fs::write(&config, sim + "\n[supervisor.processes.friction]\npolicy = \"never\"\n").expect("write");
+    let config = config_from_default(&dir, "never.toml", |sim| {
+        format!("{sim}\n[supervisor.processes.friction]\npolicy = \"never\"\n")
+    });
     let summary = dir.join("summary.json");
     let observer = Observer::open(&scope);
     let mut run = start_run(
@@ -231,8 +226,7 @@ fn a_process_whose_rule_says_never_stays_down_with_the_valve_neutral() {
     assert!(seen > 0, "the valve still reports");
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let summary: serde_json::Value = read_json(&summary);
     let faults = summary["faults"].as_array().expect("faults");
     assert_eq!(faults.len(), 1, "{summary}");
     assert_eq!(faults[0]["process"], "friction");
@@ -267,8 +261,7 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop resumes");
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let summary: serde_json::Value = read_json(&summary);
     let faults = summary["faults"].as_array().expect("faults");
     assert_eq!(faults.len(), 1, "{summary}");
     assert_eq!(

@@ -4,6 +4,29 @@
 use hydractl_sim::stack::{PositionStage, TorqueStage};
 use hydractl_sim::{build_plant, Config, ControlStack, PositionVariant, TorqueVariant};
 
+/// The valve command's bump (its second difference, over the range 2; the
+/// loop's own motion is not a bump): the largest in the 50 ms around the
+/// switch, and in the second before it.
+#[derive(Default)]
+struct BumpMeter {
+    around: f64,
+    before: f64,
+    last: (f64, f64),
+}
+
+impl BumpMeter {
+    fn record(&mut self, k: usize, switch_at: usize, command: f64) {
+        let bump = (command - 2.0 * self.last.0 + self.last.1).abs() / 2.0;
+        self.last = (command, self.last.0);
+        if k + 1000 >= switch_at && k + 25 < switch_at {
+            self.before = self.before.max(bump);
+        }
+        if k + 25 >= switch_at && k < switch_at + 25 {
+            self.around = self.around.max(bump);
+        }
+    }
+}
+
 /// Runs the cascade with `from` as the outer loop and a standby `variant`
 /// tracking it, switches at `switch_s`, and returns the largest bump of the
 /// valve command (its second difference, over its range) in the 50 ms
@@ -18,7 +41,7 @@ fn switch_position(from: PositionVariant, variant: PositionVariant, switch_s: f6
     let period = config.timing.control_period();
     let substeps = config.timing.substeps();
     let switch_at = (switch_s / period).round() as usize;
-    let (mut around, mut before, mut last) = (0.0f64, 0.0f64, (0.0, 0.0));
+    let mut meter = BumpMeter::default();
     for k in 0..switch_at + 100 {
         let time = k as f64 * period;
         let raw = sensors.read(&plant.state());
@@ -39,19 +62,10 @@ fn switch_position(from: PositionVariant, variant: PositionVariant, switch_s: f6
             standby.process(time, &sensor, out.friction);
             standby.track(out.position.output, time, &sensor, out.friction);
         }
-        // The bump: the command's departure from its own trend (its second
-        // difference), over the range 2; the loop's motion is not a bump.
-        let step = (out.command - 2.0 * last.0 + last.1).abs() / 2.0;
-        last = (out.command, last.0);
-        if k + 1000 >= switch_at && k + 25 < switch_at {
-            before = before.max(step);
-        }
-        if k + 25 >= switch_at && k < switch_at + 25 {
-            around = around.max(step);
-        }
+        meter.record(k, switch_at, out.command);
         plant.advance(out.command, substeps);
     }
-    (around, before)
+    (meter.around, meter.before)
 }
 
 #[test]
@@ -79,7 +93,7 @@ fn switch_torque(from: TorqueVariant, to: TorqueVariant, switch_s: f64) -> (f64,
     let period = config.timing.control_period();
     let substeps = config.timing.substeps();
     let switch_at = (switch_s / period).round() as usize;
-    let (mut around, mut before, mut last) = (0.0f64, 0.0f64, (0.0, 0.0));
+    let mut meter = BumpMeter::default();
     for k in 0..switch_at + 100 {
         let time = k as f64 * period;
         let raw = sensors.read(&plant.state());
@@ -94,17 +108,10 @@ fn switch_torque(from: TorqueVariant, to: TorqueVariant, switch_s: f64) -> (f64,
             standby.process(&out.position, &out.sensor, out.friction);
             standby.track(running, &out.position, &out.sensor, out.friction);
         }
-        let step = (out.command - 2.0 * last.0 + last.1).abs() / 2.0;
-        last = (out.command, last.0);
-        if k + 1000 >= switch_at && k + 25 < switch_at {
-            before = before.max(step);
-        }
-        if k + 25 >= switch_at && k < switch_at + 25 {
-            around = around.max(step);
-        }
+        meter.record(k, switch_at, out.command);
         plant.advance(out.command, substeps);
     }
-    (around, before)
+    (meter.around, meter.before)
 }
 
 #[test]
