@@ -5,6 +5,7 @@ use std::process::Output;
 use std::time::Duration;
 
 use hydractl_bus::PREFIX_ENV;
+use hydractl_samples::{fault, service, TorqueSample};
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
 
@@ -278,6 +279,73 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     assert!(
         faults[0]["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 6),
         "{summary}"
+    );
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
+    let _turn = serial();
+    let scope = unique_scope("nan");
+    let dir = scratch_dir("nan");
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &["--duration", "30", "--summary-json", summary.to_str().expect("path")],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    // A second publisher on the torque service: a controller gone wrong.
+    let bus = hydractl_bus::Bus::open(&scope, "injector").expect("node");
+    let injector: hydractl_bus::Outlet<TorqueSample> =
+        hydractl_bus::Outlet::open(&bus, service::TORQUE).expect("outlet");
+    observer.drain_valve();
+    let newest = loop {
+        if let Ok(Some(v)) = observer.valve.next() {
+            break v.sensor_seq;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    for ahead in 1..=5 {
+        injector
+            .publish(TorqueSample {
+                sensor_seq: newest + ahead,
+                command: f64::NAN,
+                ..TorqueSample::default()
+            })
+            .expect("publish");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let since = std::time::Instant::now();
+    let mut flagged = false;
+    while !flagged && since.elapsed() < Duration::from_secs(1) {
+        while let Ok(Some(v)) = observer.valve.next() {
+            assert!(v.command.is_finite(), "the valve never passes NaN on: {v:?}");
+            if v.faults & fault::NOT_FINITE != 0 {
+                assert_eq!(v.command, 0.0, "{v:?}");
+                flagged = true;
+            }
+        }
+    }
+    assert!(flagged, "the valve saw the NaN and went neutral, flagged");
+    drop(injector);
+    drop(bus);
+    assert!(
+        observer.wait_healthy(300, Duration::from_secs(5)),
+        "the loop carries on"
+    );
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary = read_json(&summary);
+    assert!(
+        summary["rms_tracking_error_rad"].as_f64().is_some_and(f64::is_finite),
+        "{summary}"
+    );
+    assert_eq!(
+        summary["faults"].as_array().map(Vec::len),
+        Some(0),
+        "no process was at fault: {summary}"
     );
     drop(observer);
     std::fs::remove_dir_all(dir).ok();
