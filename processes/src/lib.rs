@@ -41,7 +41,16 @@ pub struct RecordArgs {
     /// The MCAP file to write.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Start a new file every this many MB (parts `STEM_000.mcap`, …).
+    #[command(flatten)]
+    pub split: SplitArgs,
+}
+
+/// How a recording is split into parts `STEM_000.mcap`, `STEM_001.mcap`, …:
+/// the recorder's flags, and `hydractl run --record` and `hydractl record`,
+/// which pass them on.
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+pub struct SplitArgs {
+    /// Start a new file every this many MB.
     #[arg(long)]
     pub split_size_mb: Option<f64>,
     /// Start a new file every this many seconds.
@@ -49,17 +58,27 @@ pub struct RecordArgs {
     pub split_duration_s: Option<f64>,
 }
 
-impl RecordArgs {
-    /// The arguments that pass these on to the recorder, writing to `out`.
-    pub fn to_args(&self, out: &std::path::Path) -> Vec<String> {
+impl SplitArgs {
+    pub fn splits(&self) -> bool {
+        self.split_size_mb.is_some() || self.split_duration_s.is_some()
+    }
+
+    /// The recorder's arguments for writing to `out` with these splits;
+    /// an error names a flag that is not a positive number.
+    pub fn recorder_args(&self, out: &std::path::Path) -> Result<Vec<String>> {
         let mut args = vec!["--out".to_owned(), out.display().to_string()];
-        if let Some(mb) = self.split_size_mb {
-            args.extend(["--split-size-mb".to_owned(), mb.to_string()]);
+        for (flag, value) in [
+            ("--split-size-mb", self.split_size_mb),
+            ("--split-duration-s", self.split_duration_s),
+        ] {
+            if let Some(v) = value {
+                if !(v.is_finite() && v > 0.0) {
+                    anyhow::bail!("{flag} must be a positive number, got {v}");
+                }
+                args.extend([flag.to_owned(), v.to_string()]);
+            }
         }
-        if let Some(s) = self.split_duration_s {
-            args.extend(["--split-duration-s".to_owned(), s.to_string()]);
-        }
-        args
+        Ok(args)
     }
 }
 

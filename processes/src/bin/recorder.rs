@@ -29,8 +29,8 @@ fn main() -> Result<()> {
         ("ipc_prefix".to_owned(), started.bus.scope().prefix().to_owned()),
     ]);
     let options = RecordOptions {
-        split_bytes: record.split_size_mb.map(|mb| (mb * 1e6) as u64),
-        split_seconds: record.split_duration_s,
+        split_bytes: record.split.split_size_mb.map(|mb| (mb * 1e6) as u64),
+        split_seconds: record.split.split_duration_s,
         metadata,
         ..RecordOptions::default()
     };

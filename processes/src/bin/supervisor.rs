@@ -10,7 +10,7 @@ use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_loop, Bus, CommandServer, Outlet, PendingCommand, Reader, RunScope};
 use hydractl_processes::supervision::{Supervised, PIPELINE};
 use hydractl_processes::swap::{SwitchQuality, ValveLog};
-use hydractl_processes::RecordArgs;
+use hydractl_processes::SplitArgs;
 use hydractl_samples::{
     code, fixed_name, service, FrictionSample, Handover, PlantReading, PositionSample, ProcessStatus, RecorderStatus,
     SensorSample, SupervisorEvent, SupervisorReply, SupervisorRequest, SupervisorStatus, TorqueSample, ValveSample,
@@ -105,7 +105,7 @@ fn main() -> Result<()> {
     let mut swaps = Swaps::open(&started.bus, dir.clone(), started.args.config.clone(), cascade)?;
     let mut recorder = started.args.record.out.as_ref().map(|out| RecorderChild {
         child: Supervised::new("recorder", &dir, started.args.config.clone()),
-        args: started.args.record.clone(),
+        split: started.args.record.split.clone(),
         out: out.clone(),
     });
     let outcome = match &mut recorder {
@@ -141,7 +141,7 @@ fn main() -> Result<()> {
 /// the loop's first samples are recorded, and stopped after it.
 struct RecorderChild {
     child: Supervised,
-    args: RecordArgs,
+    split: SplitArgs,
     out: PathBuf,
 }
 
@@ -151,7 +151,7 @@ impl RecorderChild {
     /// the run, having said why on stderr.
     fn start(&mut self, bus: &Bus, scope: &RunScope) -> Result<()> {
         let ready: Reader<RecorderStatus> = Reader::open(bus, service::RECORDER_STATUS, 4)?;
-        self.child.spawn(scope, &self.args.to_args(&self.out))?;
+        self.child.spawn(scope, &self.split.recorder_args(&self.out)?)?;
         let deadline = Instant::now() + Duration::from_secs(10);
         while Instant::now() < deadline {
             if ready.latest()?.is_some() {
@@ -178,7 +178,7 @@ impl RecorderChild {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
         let out = self.out.with_file_name(format!("{stem}_restart{n}.mcap"));
-        self.child.spawn(scope, &self.args.to_args(&out))?;
+        self.child.spawn(scope, &self.split.recorder_args(&out)?)?;
         self.child.restarts = n;
         Ok(())
     }

@@ -70,10 +70,15 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
     })?;
     for topic in [service::PLANT_READING, service::VALVE, service::POSITION] {
         if !topics.contains_key(topic) {
+            let have = match (topics.is_empty(), &read.truncated) {
+                (true, Some(why)) => format!("no message at all: {why}"),
+                (true, None) => "no message at all".to_owned(),
+                (false, _) => topics.keys().cloned().collect::<Vec<_>>().join(", "),
+            };
             return Err(RecordingError::MissingChannel {
                 path: path.to_path_buf(),
                 topic: topic.to_owned(),
-                have: topics.keys().cloned().collect::<Vec<_>>().join(", "),
+                have,
             });
         }
     }

@@ -22,38 +22,7 @@ pub struct RecordArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     #[command(flatten)]
-    split: SplitArgs,
-}
-
-/// How a recording is split into parts `STEM_000.mcap`, `STEM_001.mcap`, ….
-#[derive(clap::Args, Clone, Default)]
-pub struct SplitArgs {
-    /// Start a new file every this many MB.
-    #[arg(long)]
-    pub split_size_mb: Option<f64>,
-    /// Start a new file every this many seconds.
-    #[arg(long)]
-    pub split_duration_s: Option<f64>,
-}
-
-impl SplitArgs {
-    /// The recorder's arguments for writing to `out`.
-    pub fn recorder_args(&self, out: &Path) -> Result<Vec<String>> {
-        for (flag, value) in [
-            ("--split-size-mb", self.split_size_mb),
-            ("--split-duration-s", self.split_duration_s),
-        ] {
-            if value.is_some_and(|v| !(v.is_finite() && v > 0.0)) {
-                bail!("{flag} must be a positive number");
-            }
-        }
-        Ok(hydractl_processes::RecordArgs {
-            out: Some(out.to_path_buf()),
-            split_size_mb: self.split_size_mb,
-            split_duration_s: self.split_duration_s,
-        }
-        .to_args(out))
-    }
+    split: hydractl_processes::SplitArgs,
 }
 
 #[derive(clap::Args)]

@@ -30,7 +30,7 @@ pub struct RunArgs {
     #[arg(long)]
     record: Option<PathBuf>,
     #[command(flatten)]
-    split: crate::recording::SplitArgs,
+    split: hydractl_processes::SplitArgs,
 }
 
 /// Sensor-to-valve latency, counted in 1 µs bins up to 100 ms: fixed
@@ -409,8 +409,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
 }
 
 /// Reads back the files the recorder wrote.
-fn recording_report(out: &Path, split: &crate::recording::SplitArgs) -> Result<RecordingReport> {
-    let files = if split.split_size_mb.is_some() || split.split_duration_s.is_some() {
+fn recording_report(out: &Path, split: &hydractl_processes::SplitArgs) -> Result<RecordingReport> {
+    let files = if split.splits() {
         let stem = out
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
