@@ -11,6 +11,7 @@ use hydractl_sim::stack::SensorEstimate;
 use hydractl_sim::Config;
 
 pub mod handover;
+pub mod live_plant;
 pub mod recording;
 pub mod supervision;
 pub mod swap;
@@ -29,8 +30,9 @@ pub struct ProcessArgs {
     /// Position and torque only: the controller variant, instead of the config's.
     #[arg(long)]
     pub variant: Option<String>,
-    /// Position and torque only: start as a standby that tracks the running
-    /// controller, until a handover makes it take over.
+    /// Position, torque and plants: start as a standby (a controller tracks
+    /// the running one; the simulated plant watches the machine's state)
+    /// until a handover makes it take over.
     #[arg(long)]
     pub standby: bool,
 }

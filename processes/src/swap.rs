@@ -52,18 +52,41 @@ impl ValveLog {
         self.entries.iter().find(|e| e.0 > seq && e.2 != 0).map(|e| e.0)
     }
 
+    /// Among the valve's samples for the last `window` readings, and after
+    /// reading `after`, those whose command the valve rejected as garbage
+    /// (`garbage` flags): how many, and the newest.
+    pub fn rejected(&self, garbage: u32, window: u64, after: Option<u64>) -> (u64, Option<u64>) {
+        let Some(newest) = self.newest_seq() else {
+            return (0, None);
+        };
+        let mut count = 0;
+        let mut newest_rejected = None;
+        for &(seq, _, faults) in self.entries.iter().rev() {
+            if seq + window <= newest || after.is_some_and(|a| seq <= a) {
+                break;
+            }
+            if faults & garbage != 0 {
+                count += 1;
+                newest_rejected = newest_rejected.or(Some(seq));
+            }
+        }
+        (count, newest_rejected)
+    }
+
     pub fn newest_seq(&self) -> Option<u64> {
         self.entries.back().map(|e| e.0)
     }
 
-    /// Judges the switch at reading `at`: missed cycles over `before`
-    /// readings before it and `after` from it, the loop's own steps over the
-    /// `usual` readings before it; `None` until the log reaches `at + after`.
-    pub fn judge(&self, at: u64, before: u64, after: u64, usual: u64) -> Option<SwitchQuality> {
-        if self.newest_seq()? < at + after {
+    /// Judges the switch at reading `at`: missed cycles over the `around`
+    /// readings either side of it (a reading skipped long after is the
+    /// machine's load, not the switch), the command's steps from it to `at +
+    /// after`, the loop's own steps over the `usual` readings before it;
+    /// `None` until the log reaches `at + after`.
+    pub fn judge(&self, at: u64, around: u64, after: u64, usual: u64) -> Option<SwitchQuality> {
+        if self.newest_seq()? < at + after.max(around) {
             return None;
         }
-        let window = at.saturating_sub(before)..at + after;
+        let window = at.saturating_sub(around)..at + around;
         let mut fresh = 0;
         let (mut command_step, mut loop_step_before, mut loop_step_after) = (None, 0.0f64, 0.0f64);
         let mut previous: Option<(u64, f64)> = None;
@@ -125,6 +148,29 @@ mod tests {
         assert_eq!(q.missed_cycles, 2);
         assert_eq!(log.first_fault_after(30), Some(35));
         assert_eq!(log.first_fault_after(35), None);
+    }
+
+    #[test]
+    fn a_reading_skipped_long_after_the_switch_is_not_the_switch_s() {
+        let mut log = ValveLog::with_capacity(64);
+        for seq in (0..60).filter(|&s| s != 50) {
+            log.push(seq, 0.0, 0);
+        }
+        let q = log.judge(30, 10, 25, 20).expect("judged");
+        assert_eq!(q.missed_cycles, 0);
+    }
+
+    #[test]
+    fn rejected_commands_are_counted_over_the_recent_readings() {
+        let mut log = ValveLog::with_capacity(16);
+        for (seq, faults) in [(1, 0), (2, 2), (3, 1), (4, 2), (5, 4)] {
+            log.push(seq, 0.0, faults);
+        }
+        assert_eq!(log.rejected(2 | 4, 10, None), (3, Some(5)));
+        assert_eq!(log.rejected(2 | 4, 2, None), (2, Some(5)), "readings 4 and 5");
+        assert_eq!(log.rejected(2 | 4, 10, Some(4)), (1, Some(5)), "after the one acted on");
+        log.push(6, 0.1, 0);
+        assert_eq!(log.rejected(2 | 4, 1, None), (0, None));
     }
 
     #[test]

@@ -216,3 +216,30 @@ pub fn config_from_default(dir: &Path, name: &str, edit: impl FnOnce(&str) -> St
     std::fs::write(&path, edited).expect("write the config");
     path
 }
+
+/// `hydractl ARGS` against the run in `scope`.
+pub fn hydractl_in(scope: &RunScope, args: &[&str]) -> Output {
+    hydractl()
+        .args(args)
+        .env(PREFIX_ENV, scope.prefix())
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("hydractl runs")
+}
+
+/// `hydractl status --json`.
+pub fn status(scope: &RunScope) -> serde_json::Value {
+    let out = hydractl_in(scope, &["status", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("status json")
+}
+
+/// One process's entry in a status.
+pub fn process<'a>(status: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
+    status["processes"]
+        .as_array()
+        .expect("processes")
+        .iter()
+        .find(|p| p["name"] == name)
+        .unwrap_or_else(|| panic!("{name} in {status}"))
+}

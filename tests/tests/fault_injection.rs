@@ -123,12 +123,19 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
         "back within 100 ms: {restart_ms:?}"
     );
     assert!(restart_ms[KILLS - 1] < 200.0, "back within 200 ms: {restart_ms:?}");
+    let mut safe_after = Vec::new();
     for f in faults {
         assert_eq!(f["kind"], "crash", "{f}");
         if matches!(f["process"].as_str(), Some("friction" | "position" | "torque")) {
-            assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 6), "{f}");
+            safe_after.push(f["valve_safe_after_periods"].as_u64().unwrap_or(u64::MAX));
         }
     }
+    safe_after.sort_unstable();
+    eprintln!("valve neutral, periods from the missed deadline: {safe_after:?}");
+    // Two periods when every reading reaches the valve; the guard counts
+    // readings that arrived, so one the loaded machine skipped adds one.
+    assert!(safe_after[safe_after.len() / 2] <= 2, "median: {safe_after:?}");
+    assert!(safe_after.iter().all(|&p| p <= 4), "{safe_after:?}");
     drop(observer);
     std::fs::remove_dir_all(dir).ok();
 }

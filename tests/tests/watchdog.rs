@@ -1,37 +1,11 @@
 //! The watchdog's hot swap: controller variants replaced while the loop
 //! runs, over iceoryx2 request-response, and the stack's status.
 
-use std::process::Output;
 use std::time::Duration;
 
-use hydractl_bus::PREFIX_ENV;
 use hydractl_samples::{fault, service, TorqueSample};
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
-
-fn hydractl_in(scope: &hydractl_bus::RunScope, args: &[&str]) -> Output {
-    hydractl()
-        .args(args)
-        .env(PREFIX_ENV, scope.prefix())
-        .env("RUST_BACKTRACE", "0")
-        .output()
-        .expect("hydractl runs")
-}
-
-fn status(scope: &hydractl_bus::RunScope) -> serde_json::Value {
-    let out = hydractl_in(scope, &["status", "--json"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&out.stdout).expect("status json")
-}
-
-fn process<'a>(status: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
-    status["processes"]
-        .as_array()
-        .expect("processes")
-        .iter()
-        .find(|p| p["name"] == name)
-        .unwrap_or_else(|| panic!("{name} in {status}"))
-}
 
 #[test]
 fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
@@ -99,7 +73,10 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
         (["swap", "position", "mfc"], "already runs mfc"),
         (["swap", "position", "hinf"], "no variant `hinf`"),
         (["swap", "valve", "pid"], "no stage `valve`"),
+        (["plant", "machine", ""], "has no machine"),
+        (["plant", "sim", ""], "already runs on the simulation"),
     ] {
+        let args: Vec<&str> = args.into_iter().filter(|a| !a.is_empty()).collect();
         let out = hydractl_in(&scope, &args);
         assert!(!out.status.success());
         assert!(
@@ -346,6 +323,91 @@ fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
         summary["faults"].as_array().map(Vec::len),
         Some(0),
         "no process was at fault: {summary}"
+    );
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_controller_whose_commands_keep_being_rejected_is_restarted_into_its_fallback_variant() {
+    let _turn = serial();
+    let scope = unique_scope("misbehaving");
+    let dir = scratch_dir("misbehaving");
+    let config = config_from_default(&dir, "fallback.toml", |sim| {
+        sim.replace("fallback_variants = {}", "fallback_variants = { torque = \"hinf\" }")
+    });
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            "30",
+            "--summary-json",
+            summary.to_str().expect("path"),
+        ],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    assert_eq!(process(&status(&scope), "torque")["variant"], "pid");
+    // A second publisher on the torque service sends NaN commands for the
+    // newest readings for 200 ms: an inner loop gone wrong, reading after
+    // reading. (The controllers themselves hold their last output on a
+    // NaN input, so garbage has to be injected.)
+    let bus = hydractl_bus::Bus::open(&scope, "injector").expect("node");
+    let injector: hydractl_bus::Outlet<TorqueSample> =
+        hydractl_bus::Outlet::open(&bus, service::TORQUE).expect("outlet");
+    let since = std::time::Instant::now();
+    let mut seq = 0;
+    let (mut run_of_rejected, mut longest) = (0, 0);
+    let mut flags = std::collections::BTreeMap::<u32, usize>::new();
+    while since.elapsed() < Duration::from_millis(200) {
+        while let Ok(Some(v)) = observer.valve.next() {
+            assert!(v.command.is_finite(), "the valve never passes NaN on: {v:?}");
+            seq = seq.max(v.sensor_seq);
+            *flags.entry(v.faults).or_default() += 1;
+            run_of_rejected = if v.faults & fault::NOT_FINITE != 0 {
+                run_of_rejected + 1
+            } else {
+                0
+            };
+            longest = longest.max(run_of_rejected);
+        }
+        injector
+            .publish(TorqueSample {
+                sensor_seq: seq,
+                command: f64::NAN,
+                ..TorqueSample::default()
+            })
+            .expect("publish");
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    drop(injector);
+    drop(bus);
+    observer.drain_valve();
+    assert!(
+        observer.wait_healthy(300, Duration::from_secs(5)),
+        "the loop carries on"
+    );
+    assert_eq!(
+        process(&status(&scope), "torque")["variant"],
+        "hinf",
+        "restarted into its fallback variant; the valve's flags {flags:?}, longest run {longest}"
+    );
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary = read_json(&summary);
+    let faults = summary["faults"].as_array().expect("faults");
+    assert!(
+        faults
+            .iter()
+            .any(|f| f["process"] == "torque" && f["kind"] == "misbehaving"),
+        "{summary}"
+    );
+    assert!(
+        faults.iter().all(|f| f["process"] == "torque"),
+        "only the culprit: {summary}"
     );
     drop(observer);
     std::fs::remove_dir_all(dir).ok();

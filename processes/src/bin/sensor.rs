@@ -44,7 +44,7 @@ fn main() -> Result<()> {
                 p_b: estimate.p_b,
                 torque: estimate.torque,
                 valid: flags,
-                reserved: 0,
+                source: reading.source,
             })?;
             Ok(())
         })

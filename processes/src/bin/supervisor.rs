@@ -12,9 +12,9 @@ use hydractl_processes::supervision::{Supervised, PIPELINE};
 use hydractl_processes::swap::{SwitchQuality, ValveLog};
 use hydractl_processes::SplitArgs;
 use hydractl_samples::{
-    code, fixed_name, service, FrictionSample, Handover, PlantReading, PositionSample, ProcessStatus, RecorderStatus,
-    SensorSample, SupervisorEvent, SupervisorReply, SupervisorRequest, SupervisorStatus, TorqueSample, ValveSample,
-    MAX_PROCESSES,
+    code, fault, fixed_name, service, source, FrictionSample, Handover, PlantReading, PositionSample, ProcessStatus,
+    RecorderStatus, SensorSample, SupervisorEvent, SupervisorReply, SupervisorRequest, SupervisorStatus, TorqueSample,
+    ValveSample, MAX_PROCESSES,
 };
 use hydractl_sim::{PositionVariant, Structure, TorqueVariant};
 
@@ -43,10 +43,18 @@ impl Heartbeats {
     /// The newest reading each of the pipeline's outputs answered since the
     /// last call (`None`: it did not advance), in [`PIPELINE`] order; keeps
     /// the plant's last reading for a restart.
-    fn advanced(&self, last_reading: &mut Option<PlantReading>) -> Result<[Option<Answer>; 6]> {
-        let reading = self.plant.latest()?;
+    fn advanced(
+        &self,
+        last_reading: &mut Option<PlantReading>,
+        position_output_finite: &mut bool,
+    ) -> Result<[Option<Answer>; 6]> {
+        let reading = self.plant.newest_by(|r| r.sensor_seq)?;
         if reading.is_some() {
             *last_reading = reading;
+        }
+        let position = self.position.latest()?;
+        if let Some(p) = position {
+            *position_output_finite = p.output.is_finite();
         }
         Ok([
             reading.map(|r| Answer::new(r.sensor_seq, r.sensor_time_ns)),
@@ -56,9 +64,7 @@ impl Heartbeats {
             self.friction
                 .latest()?
                 .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
-            self.position
-                .latest()?
-                .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
+            position.map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
             self.torque
                 .latest()?
                 .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
@@ -92,6 +98,14 @@ fn main() -> Result<()> {
         .iter()
         .map(|(name, _, _)| Supervised::new(name, &dir, started.args.config.clone()))
         .collect();
+    // With a machine, it holds the plant seat and the simulated plant waits
+    // as its spare.
+    let mut seat = Seat::open(&started.bus, &started.config)?;
+    if started.config.machine.is_some() {
+        let machine = Supervised::new("machine", &dir, started.args.config.clone());
+        seat.spare = Some(std::mem::replace(&mut children[0], machine));
+        seat.source = source::MACHINE;
+    }
     let cascade = started.config.control.structure == Structure::Cascade;
     children[3].variant = Some(match started.config.control.outer().variant {
         PositionVariant::Pid => "pid",
@@ -112,7 +126,17 @@ fn main() -> Result<()> {
         Some(r) => r.start(&started.bus, &scope),
         None => Ok(()),
     }
-    .and_then(|()| supervise(&started.bus, &scope, &policy, &mut children, &mut recorder, &mut swaps));
+    .and_then(|()| {
+        supervise(
+            &started.bus,
+            &scope,
+            &policy,
+            &mut children,
+            &mut recorder,
+            &mut swaps,
+            &mut seat,
+        )
+    });
 
     // Stop the loop, then the recorder, which drains what the loop last
     // published and finishes its file; then clean what is left.
@@ -120,8 +144,14 @@ fn main() -> Result<()> {
     for child in children.iter().rev() {
         child.request_stop();
     }
+    if let Some(spare) = &seat.spare {
+        spare.request_stop();
+    }
     for child in children.iter_mut().rev() {
         child.finish_stop(deadline);
+    }
+    if let Some(spare) = &mut seat.spare {
+        spare.finish_stop(deadline);
     }
     if let Some(r) = &mut recorder {
         r.child.request_stop();
@@ -131,6 +161,7 @@ fn main() -> Result<()> {
     }
     // Ports before their node: a port keeps its node alive.
     drop(swaps);
+    drop(seat);
     drop(started.bus);
     // Clean up whatever the outcome; report the outcome's error first.
     let cleaned = scope.clean_stale();
@@ -191,10 +222,16 @@ fn supervise(
     children: &mut [Supervised],
     recorder: &mut Option<RecorderChild>,
     swaps: &mut Swaps,
+    seat: &mut Seat,
 ) -> Result<()> {
     for child in children.iter_mut() {
         child.spawn(scope, &[])?;
     }
+    if let Some(spare) = &mut seat.spare {
+        spare.spawn(scope, &["--standby".to_owned()])?;
+    }
+    let commands: CommandServer<SupervisorRequest, SupervisorReply> =
+        CommandServer::open(bus, service::SUPERVISOR_COMMAND)?;
     let mut last_reading: Option<PlantReading> = None;
     let heartbeats = Heartbeats::open(bus)?;
     let status: Outlet<SupervisorStatus> = Outlet::open(bus, service::SUPERVISOR_STATUS)?;
@@ -209,11 +246,14 @@ fn supervise(
     let mut faults: Vec<Option<Fault>> = vec![None; children.len()];
     let mut last_answer_ns = vec![clock::now_ns(); children.len()];
     let mut restarting = vec![true; children.len()];
+    let mut position_output_finite = true;
+    // The newest rejected command already acted on.
+    let mut misbehaving_handled: Option<u64> = None;
     let mut failure = None;
     run_loop(&[], Some(Duration::from_millis(5)), |_| {
         hydractl_bus::guarded(&mut failure, || -> Result<()> {
             let now = Instant::now();
-            let advanced = heartbeats.advanced(&mut last_reading)?;
+            let advanced = heartbeats.advanced(&mut last_reading, &mut position_output_finite)?;
             // Whether each output had paused, before this round's news, by
             // its own timestamps (a just-restarted process has none yet).
             let now_ns = clock::now_ns();
@@ -237,6 +277,85 @@ fn supervise(
                 }
             }
             let mut cleanup_needed = false;
+            // The machine lost (dead, or its readings stopped): the simulated
+            // plant takes the seat before anything else is judged.
+            if seat.can_fall_back() {
+                let silent_for = Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[0]));
+                let crashed = children[0].reap();
+                if crashed || (last_reading.is_some() && silent_for >= seat.lost_after) {
+                    if crashed {
+                        cleanup_needed = true;
+                    }
+                    let why = if crashed {
+                        format!(
+                            "the machine process exited; its last reading came {} ms before",
+                            silent_for.as_millis()
+                        )
+                    } else {
+                        format!("no reading from the machine for {} ms", silent_for.as_millis())
+                    };
+                    seat.fall_back(
+                        children,
+                        swaps,
+                        last_reading.map(|r| r.sensor_seq),
+                        silent_for,
+                        &why,
+                        now,
+                    )?;
+                    last_answer_ns[0] = clock::now_ns();
+                    faults[0] = None;
+                    if crashed {
+                        if let Some(spare) = &mut seat.spare {
+                            spare.after_stop(now, policy);
+                        }
+                    }
+                }
+            }
+            cleanup_needed |= seat.tick_spare(scope, policy, now)?;
+            // A controller whose commands the valve keeps rejecting: the
+            // valve is already neutral; the controller is restarted, into
+            // its fallback variant if the config names one. The outer loop
+            // is blamed when its own output is garbage, else the stage that
+            // feeds the valve.
+            let (rejected, newest) = swaps.log.rejected(
+                fault::NOT_FINITE | fault::OUT_OF_RANGE,
+                2 * policy.misbehaving_after_periods,
+                misbehaving_handled,
+            );
+            if rejected >= policy.misbehaving_after_periods {
+                misbehaving_handled = newest;
+                let i = if !position_output_finite || children[4].variant.is_none() {
+                    3
+                } else {
+                    4
+                };
+                let child = &mut children[i];
+                if child.is_running() {
+                    faults[i] = Some(Fault {
+                        kind: code::EVENT_MISBEHAVING,
+                        pid: child.pid().unwrap_or(0),
+                        detected_at: now,
+                        silent_for: Duration::ZERO,
+                        last_seq: newest.map(|s| s.saturating_sub(rejected)),
+                    });
+                    child.kill_hung();
+                    cleanup_needed = true;
+                    if let Some(v) = policy
+                        .fallback_variants
+                        .get(child.name)
+                        .and_then(|v| code::variant_code(v))
+                    {
+                        child.variant = Some(code::variant_name(v));
+                    }
+                    eprintln!(
+                        "supervisor: the valve rejected {rejected} commands in {} readings: {} misbehaves; restarting it ({})",
+                        2 * policy.misbehaving_after_periods,
+                        child.name,
+                        child.variant.unwrap_or("-")
+                    );
+                    restarting[i] = child.after_stop(now, policy);
+                }
+            }
             for i in 0..children.len() {
                 // Hung: running past its grace, its input flowing (the plant
                 // paces itself), and no output for `hung_after`. The input
@@ -322,11 +441,21 @@ fn supervise(
                     child.restarts += 1;
                 }
             }
-            swaps.tick(scope, children, last_reading.map(|r| r.sensor_seq), now)?;
+            let request = match commands.receive()? {
+                Some(r) if r.request().stage == code::STAGE_PLANT => {
+                    seat.on_request(r, children, swaps, last_reading.map(|r| r.sensor_seq), now)?;
+                    last_answer_ns[0] = clock::now_ns();
+                    None
+                }
+                other => other,
+            };
+            swaps.tick(scope, children, request, last_reading.map(|r| r.sensor_seq), now)?;
             if now.saturating_duration_since(last_status) >= Duration::from_millis(100) {
                 last_status = now;
                 let recorder = recorder.as_ref().map(|r| &r.child);
-                status.publish(status_of(status_seq, children, recorder, own_pid, now, hung_after))?;
+                status.publish(status_of(
+                    status_seq, children, seat, recorder, own_pid, now, hung_after,
+                ))?;
                 status_seq += 1;
             }
             Ok(())
@@ -338,6 +467,7 @@ fn supervise(
 fn status_of(
     seq: u64,
     children: &[Supervised],
+    seat: &Seat,
     recorder: Option<&Supervised>,
     own_pid: u32,
     now: Instant,
@@ -345,9 +475,7 @@ fn status_of(
 ) -> SupervisorStatus {
     let mut status = SupervisorStatus {
         seq,
-        // The plant process is the simulated rotator (on the vehicle, the
-        // machine stands in its place).
-        plant_is_simulation: 1,
+        plant_is_simulation: u32::from(seat.source == source::SIMULATION),
         stage_time_ns: clock::now_ns(),
         ..SupervisorStatus::default()
     };
@@ -357,6 +485,18 @@ fn status_of(
         pid: c.pid().unwrap_or(0),
         restarts: c.restarts,
         healthy: u32::from(c.is_running() && now.saturating_duration_since(c.last_output) <= hung_after),
+        reserved: 0,
+    });
+    // The plant not in charge: the simulated plant is ready while it runs;
+    // the machine is well while its readings come.
+    let spare = seat.spare.as_ref().map(|p| ProcessStatus {
+        name: fixed_name(p.name),
+        variant: fixed_name("standby"),
+        pid: p.pid().unwrap_or(0),
+        restarts: p.restarts,
+        healthy: u32::from(
+            p.is_running() && (p.name == "plant" || now.saturating_duration_since(p.last_output) <= hung_after),
+        ),
         reserved: 0,
     });
     // The recorder has no output of its own on the loop: healthy while it runs.
@@ -380,13 +520,173 @@ fn status_of(
     for (slot, entry) in status
         .processes
         .iter_mut()
-        .zip(entries.chain(recorder).chain(std::iter::once(supervisor)))
+        .zip(entries.chain(spare).chain(recorder).chain(std::iter::once(supervisor)))
     {
         *slot = entry;
         count += 1;
     }
     status.process_count = count.min(MAX_PROCESSES) as u32;
     status
+}
+
+/// The plant seat: which plant drives the loop's readings. With a machine,
+/// the machine holds it and the simulated plant waits as the spare; when
+/// the machine is lost, or on `hydractl plant sim|machine`, they change
+/// places: `children[0]` is always the plant in charge.
+struct Seat {
+    source: u32,
+    spare: Option<Supervised>,
+    standby_readings: Reader<PlantReading>,
+    lost_after: Duration,
+}
+
+impl Seat {
+    fn open(bus: &Bus, config: &hydractl_sim::Config) -> Result<Self> {
+        Ok(Self {
+            source: source::SIMULATION,
+            spare: None,
+            standby_readings: Reader::open(bus, service::PLANT_STANDBY, 4)?,
+            lost_after: Duration::from_secs_f64(
+                config.timing.control_period() * config.supervisor.machine_lost_after_periods as f64,
+            ),
+        })
+    }
+
+    /// Whether the simulated plant is there to take over.
+    fn can_fall_back(&self) -> bool {
+        self.source == source::MACHINE && self.spare.as_ref().is_some_and(Supervised::is_running)
+    }
+
+    /// Keeps the spare: notes the machine's standby readings, restarts it
+    /// as its rule says. Returns whether a dead node needs cleaning.
+    fn tick_spare(&mut self, scope: &RunScope, policy: &hydractl_sim::SupervisorConfig, now: Instant) -> Result<bool> {
+        let Some(spare) = &mut self.spare else {
+            return Ok(false);
+        };
+        while self.standby_readings.next()?.is_some() {
+            spare.last_output = now;
+        }
+        let mut cleanup_needed = false;
+        if spare.reap() {
+            cleanup_needed = true;
+            if !spare.after_stop(now, policy) {
+                let why = spare.given_up.clone().unwrap_or_default();
+                eprintln!("supervisor: the standby {} is left down: {why}", spare.name);
+            }
+        }
+        if spare.restart_due(now) {
+            spare.spawn(scope, &["--standby".to_owned()])?;
+            spare.restarts += 1;
+        }
+        Ok(cleanup_needed)
+    }
+
+    fn change_places(&mut self, children: &mut [Supervised], now: Instant) -> u32 {
+        let Some(spare) = &mut self.spare else {
+            return 0;
+        };
+        std::mem::swap(&mut children[0], spare);
+        children[0].last_output = now;
+        children[0].input_resumed = now;
+        children[0].last_seq = None;
+        spare.last_output = now;
+        children[0].pid().unwrap_or(0)
+    }
+
+    /// The machine is lost: the simulated plant takes the seat from the
+    /// reading after the last one, starting from the last measured state.
+    fn fall_back(
+        &mut self,
+        children: &mut [Supervised],
+        swaps: &mut Swaps,
+        last_seq: Option<u64>,
+        silent_for: Duration,
+        why: &str,
+        now: Instant,
+    ) -> Result<()> {
+        let at_seq = last_seq.map_or(0, |s| s + 1);
+        let pid = self.spare.as_ref().and_then(Supervised::pid).unwrap_or(0);
+        swaps.hand_over(code::STAGE_PLANT, at_seq, pid, source::SIMULATION)?;
+        self.change_places(children, now);
+        self.source = source::SIMULATION;
+        eprintln!(
+            "supervisor: {why}: the loop now runs on the SIMULATED plant, from reading {at_seq} and the last measured state; `hydractl plant machine` goes back"
+        );
+        swaps.publish_plant_event(
+            code::EVENT_FALLBACK,
+            at_seq,
+            silent_for,
+            "machine",
+            ("machine", "simulation"),
+            pid,
+        )
+    }
+
+    /// `hydractl plant sim|machine`: a live change of places, at a reading
+    /// far enough ahead for both plants to see the handover.
+    fn on_request(
+        &mut self,
+        request: PendingCommand<SupervisorRequest, SupervisorReply>,
+        children: &mut [Supervised],
+        swaps: &mut Swaps,
+        reading: Option<u64>,
+        now: Instant,
+    ) -> Result<()> {
+        let to = request.request().variant;
+        let from = self.source;
+        let refusal = if to != source::MACHINE && to != source::SIMULATION {
+            Some(format!("no plant {to}: `sim` or `machine`"))
+        } else if to == from {
+            Some(format!("the loop already runs on the {}", plant_name(to)))
+        } else if let Some(spare) = self.spare.as_ref().filter(|s| s.is_running()) {
+            let quiet = now.saturating_duration_since(spare.last_output);
+            if to == source::MACHINE && quiet > self.lost_after {
+                Some(format!(
+                    "the machine sends no readings (the last came {} ms ago): the loop stays on the simulated plant",
+                    quiet.as_millis()
+                ))
+            } else if reading.is_none() {
+                Some("the loop has no reading yet: try again".to_owned())
+            } else {
+                None
+            }
+        } else if self.spare.is_some() {
+            Some(format!("the {} is not running: try again", plant_name(to)))
+        } else {
+            Some("this run has no machine (its config has no [machine]): it runs on the simulated plant".to_owned())
+        };
+        if let Some(why) = refusal {
+            return reply(request, false, from, &why);
+        }
+        let at_seq = reading.unwrap_or(0) + HANDOVER_LEAD;
+        let pid = self.spare.as_ref().and_then(Supervised::pid).unwrap_or(0);
+        swaps.hand_over(code::STAGE_PLANT, at_seq, pid, to)?;
+        self.change_places(children, now);
+        self.source = to;
+        let message = format!("the loop runs on the {} from reading {at_seq}", plant_name(to));
+        eprintln!("supervisor: as asked, {message}");
+        swaps.publish_plant_event(
+            code::EVENT_PLANT_SWITCH,
+            at_seq,
+            Duration::ZERO,
+            "plant",
+            (plant_name(from), plant_name(to)),
+            pid,
+        )?;
+        Ok(request.reply(SupervisorReply {
+            accepted: 1,
+            from_variant: from,
+            message: fixed_name(&message),
+            ..SupervisorReply::default()
+        })?)
+    }
+}
+
+fn plant_name(source_code: u32) -> &'static str {
+    match source_code {
+        source::MACHINE => "machine",
+        _ => "simulation",
+    }
 }
 
 /// A process that crashed or hung, until it is back.
@@ -407,7 +707,6 @@ struct Fault {
 /// the reading from which it is in charge; the valve's samples around that
 /// reading judge the switch; then the old process is stopped.
 struct Swaps {
-    commands: CommandServer<SupervisorRequest, SupervisorReply>,
     handovers: Outlet<Handover>,
     events: Outlet<SupervisorEvent>,
     valve: Reader<ValveSample>,
@@ -447,7 +746,6 @@ const STANDBY_OUTPUTS: u32 = 100;
 impl Swaps {
     fn open(bus: &Bus, dir: PathBuf, config: Option<PathBuf>, cascade: bool) -> Result<Self> {
         Ok(Self {
-            commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
             handovers: Outlet::open(bus, service::HANDOVER)?,
             events: Outlet::open(bus, service::SUPERVISOR_EVENTS)?,
             valve: Reader::open(bus, service::VALVE, 256)?,
@@ -467,6 +765,7 @@ impl Swaps {
         &mut self,
         scope: &RunScope,
         children: &mut [Supervised],
+        request: Option<PendingCommand<SupervisorRequest, SupervisorReply>>,
         reading: Option<u64>,
         now: Instant,
     ) -> Result<()> {
@@ -480,7 +779,7 @@ impl Swaps {
         while self.standby_torque.next()?.is_some() {
             standby_outputs += 1;
         }
-        if let Some(request) = self.commands.receive()? {
+        if let Some(request) = request {
             match self.current {
                 Some(_) => reply(
                     request,
@@ -510,16 +809,12 @@ impl Swaps {
                 match reading {
                     Some(seq) if swap.standby_outputs >= STANDBY_OUTPUTS => {
                         let at_seq = seq + HANDOVER_LEAD;
-                        self.handovers.publish(Handover {
-                            seq: self.handover_seq,
-                            stage_time_ns: clock::now_ns(),
+                        self.hand_over(
+                            swap.stage,
                             at_seq,
-                            new_pid: swap.child.pid().unwrap_or(0),
-                            stage: swap.stage,
-                            variant: code::variant_code(swap.to).unwrap_or(0),
-                            reserved: 0,
-                        })?;
-                        self.handover_seq += 1;
+                            swap.child.pid().unwrap_or(0),
+                            code::variant_code(swap.to).unwrap_or(0),
+                        )?;
                         swap.phase = SwapPhase::HandedOver { at_seq, since: now };
                     }
                     _ => {}
@@ -659,6 +954,21 @@ impl Swaps {
         Ok(())
     }
 
+    /// Names the process that answers `stage` from reading `at_seq` on.
+    fn hand_over(&mut self, stage: u32, at_seq: u64, new_pid: u32, variant: u32) -> Result<()> {
+        self.handovers.publish(Handover {
+            seq: self.handover_seq,
+            stage_time_ns: clock::now_ns(),
+            at_seq,
+            new_pid,
+            stage,
+            variant,
+            reserved: 0,
+        })?;
+        self.handover_seq += 1;
+        Ok(())
+    }
+
     /// The running controller stays in charge; the caller hears why.
     fn fail(&mut self, swap: SwapInProgress, why: &str) -> Result<()> {
         let quality = SwitchQuality {
@@ -685,9 +995,12 @@ impl Swaps {
     /// A fault's account, once its process answers again: how long the
     /// detection, the valve's going safe and the restart took.
     fn publish_fault(&mut self, process: &str, fault: Fault, back_at: Option<Instant>) -> Result<()> {
+        // The command for reading `seq + 1` was due when reading `seq + 2`
+        // came: the fault shows from there; until the guard trips the
+        // valve holds its last command.
         let valve_safe = fault
             .last_seq
-            .and_then(|seq| self.log.first_fault_after(seq).map(|at| at - seq))
+            .and_then(|seq| self.log.first_fault_after(seq).map(|at| at.saturating_sub(seq + 2)))
             .unwrap_or(u64::MAX);
         self.events.publish(SupervisorEvent {
             seq: self.event_seq,
@@ -701,6 +1014,34 @@ impl Swaps {
             kind: fault.kind,
             pid: fault.pid,
             process: fixed_name(process),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
+    }
+
+    /// The plant seat changed: fallback or asked for.
+    fn publish_plant_event(
+        &mut self,
+        kind: u32,
+        at_seq: u64,
+        detected_after: Duration,
+        process: &str,
+        (from, to): (&str, &str),
+        pid: u32,
+    ) -> Result<()> {
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: at_seq,
+            valve_safe_after_periods: u64::MAX,
+            detected_after_ns: detected_after.as_nanos() as u64,
+            restarted_after_ns: u64::MAX,
+            kind,
+            pid,
+            process: fixed_name(process),
+            from: fixed_name(from),
+            to: fixed_name(to),
             ..SupervisorEvent::default()
         })?;
         self.event_seq += 1;

@@ -17,6 +17,8 @@ pub struct DeviceReading {
     /// Pa.
     pub p_a: f64,
     pub p_b: f64,
+    /// [`hydractl_samples::source`]: the machine or the simulated plant.
+    pub source: u32,
 }
 
 /// A sensor bus. The process sleeps on [`SensorDevice::listener`] (a CAN
@@ -57,12 +59,13 @@ impl SensorDevice for SimulatedSensors {
     }
 
     fn try_read(&self) -> Result<Option<DeviceReading>, BusError> {
-        Ok(self.readings.latest()?.map(|r| DeviceReading {
+        Ok(self.readings.newest_by(|r| r.sensor_seq)?.map(|r| DeviceReading {
             seq: r.sensor_seq,
             time_ns: r.sensor_time_ns,
             angle: r.angle,
             p_a: r.p_a,
             p_b: r.p_b,
+            source: r.source,
         }))
     }
 }

@@ -128,6 +128,19 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
             .map_err(|e| BusError::ipc(format!("receive on {}", self.name), e))
     }
 
+    /// The waiting sample with the greatest `key`, dropping the others: with
+    /// two publishers (a plant handing over to another), samples arrive
+    /// publisher by publisher, not in the order they were published.
+    pub fn newest_by<K: Ord>(&self, key: impl Fn(&T) -> K) -> Result<Option<T>, BusError> {
+        let mut newest: Option<T> = None;
+        while let Some(sample) = self.next()? {
+            if newest.as_ref().is_none_or(|n| key(&sample) >= key(n)) {
+                newest = Some(sample);
+            }
+        }
+        Ok(newest)
+    }
+
     /// The newest waiting sample, dropping older ones.
     pub fn latest(&self) -> Result<Option<T>, BusError> {
         let mut newest = None;
@@ -170,6 +183,10 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
 
     pub fn latest(&self) -> Result<Option<T>, BusError> {
         self.reader.latest()
+    }
+
+    pub fn newest_by<K: Ord>(&self, key: impl Fn(&T) -> K) -> Result<Option<T>, BusError> {
+        self.reader.newest_by(key)
     }
 
     /// Blocks until a sample arrives or `timeout` passes; the newest sample.

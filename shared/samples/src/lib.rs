@@ -39,6 +39,24 @@ pub mod service {
     /// A standby controller's outputs while it tracks the running one.
     pub const POSITION_STANDBY: &str = "hydractl/position/standby";
     pub const TORQUE_STANDBY: &str = "hydractl/torque/standby";
+    /// The machine's readings while the simulated plant drives the loop:
+    /// it is alive, and the loop can go back to it.
+    pub const PLANT_STANDBY: &str = "hydractl/plant/standby";
+}
+
+/// Where a reading comes from: the machine, or the simulated plant. Zero,
+/// a sample's default, says simulation: nothing claims to be the machine
+/// unless the machine made it.
+pub mod source {
+    pub const SIMULATION: u32 = 0;
+    pub const MACHINE: u32 = 1;
+
+    pub fn name(source: u32) -> &'static str {
+        match source {
+            MACHINE => "machine",
+            _ => "simulation",
+        }
+    }
 }
 
 /// Validity flags of a sensor sample.
@@ -70,11 +88,20 @@ pub mod code {
     pub const VARIANT_HINF: u32 = 2;
     pub const STAGE_POSITION: u32 = 0;
     pub const STAGE_TORQUE: u32 = 1;
+    /// The plant seat: the machine or the simulated plant ([`crate::source`]).
+    pub const STAGE_PLANT: u32 = 2;
     /// [`crate::SupervisorEvent`] kinds.
     pub const EVENT_SWAP: u32 = 0;
     pub const EVENT_SWAP_FAILED: u32 = 1;
     pub const EVENT_CRASH: u32 = 2;
     pub const EVENT_HANG: u32 = 3;
+    /// The machine's readings stopped: the simulated plant took over.
+    pub const EVENT_FALLBACK: u32 = 4;
+    /// The plant seat changed on request (`hydractl plant sim|machine`).
+    pub const EVENT_PLANT_SWITCH: u32 = 5;
+    /// A controller's commands were rejected by the valve, reading after
+    /// reading: it was restarted (into its fallback variant, if any).
+    pub const EVENT_MISBEHAVING: u32 = 6;
 
     pub fn variant_name(variant: u32) -> &'static str {
         match variant {
@@ -98,6 +125,7 @@ pub mod code {
         match stage {
             STAGE_POSITION => "position",
             STAGE_TORQUE => "torque",
+            STAGE_PLANT => "plant",
             _ => "?",
         }
     }
@@ -119,6 +147,9 @@ pub struct PlantReading {
     pub true_angle: f64,
     /// Periods in which the valve command arrived too late to be applied.
     pub late_commands: u64,
+    /// [`source`]: the machine or the simulated plant.
+    pub source: u32,
+    pub reserved: u32,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
@@ -137,7 +168,8 @@ pub struct SensorSample {
     pub torque: f64,
     /// [`valid`] flags.
     pub valid: u32,
-    pub reserved: u32,
+    /// [`source`] of the reading.
+    pub source: u32,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
@@ -269,8 +301,10 @@ pub struct SupervisorEvent {
     /// the switch (old controller) and after its transient (new one).
     pub loop_step_before: f64,
     pub loop_step_after: f64,
-    /// Fault: readings from the last one the process answered to the first
-    /// with the valve made safe (u64::MAX: the valve never needed to be).
+    /// Fault: periods from the first missed deadline (the command for the
+    /// reading after the last one answered, due one period later) to the
+    /// valve's neutral; the valve holds its last command meanwhile
+    /// (u64::MAX: the valve never needed to be made safe).
     pub valve_safe_after_periods: u64,
     /// Fault: from the process's last output to the supervisor seeing it.
     pub detected_after_ns: u64,
@@ -438,7 +472,7 @@ mod tests {
 
     #[test]
     fn no_hidden_padding() {
-        assert_eq!(size_of::<PlantReading>(), 7 * 8);
+        assert_eq!(size_of::<PlantReading>(), 7 * 8 + 8);
         assert_eq!(size_of::<SensorSample>(), 8 * 8 + 8);
         assert_eq!(size_of::<FrictionSample>(), 5 * 8);
         assert_eq!(size_of::<PositionSample>(), 8 * 8 + 8);

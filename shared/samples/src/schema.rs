@@ -141,13 +141,13 @@ recordable!(
     PlantReading,
     "PlantReading",
     sensor_time_ns,
-    "uint64 sensor_seq\nuint64 sensor_time_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 true_angle\nuint64 late_commands\n"
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 true_angle\nuint64 late_commands\nuint32 source\nuint32 reserved\n"
 );
 recordable!(
     SensorSample,
     "SensorSample",
     stage_time_ns,
-    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 angle\nfloat64 velocity\nfloat64 p_a\nfloat64 p_b\nfloat64 torque\nuint32 valid\nuint32 reserved\n"
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 angle\nfloat64 velocity\nfloat64 p_a\nfloat64 p_b\nfloat64 torque\nuint32 valid\nuint32 source\n"
 );
 recordable!(
     FrictionSample,

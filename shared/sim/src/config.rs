@@ -220,6 +220,15 @@ pub struct SupervisorConfig {
     pub restart: RestartRule,
     /// …unless `[supervisor.processes.NAME]` says otherwise for one.
     pub processes: std::collections::BTreeMap<String, RestartRule>,
+    /// With a machine: no reading from it for this many control periods
+    /// and the stack goes on against the simulated plant.
+    pub machine_lost_after_periods: u64,
+    /// A controller whose commands the valve rejects (NaN, out of range)
+    /// this many times within twice as many readings misbehaves: it is
+    /// killed and restarted…
+    pub misbehaving_after_periods: u64,
+    /// …into this variant, per stage (`position`, `torque`), when given.
+    pub fallback_variants: std::collections::BTreeMap<String, String>,
 }
 
 impl Default for SupervisorConfig {
@@ -232,12 +241,17 @@ impl Default for SupervisorConfig {
             stop_timeout_ms: 1000,
             restart: RestartRule::default(),
             processes: std::collections::BTreeMap::new(),
+            machine_lost_after_periods: 10,
+            misbehaving_after_periods: 10,
+            fallback_variants: std::collections::BTreeMap::new(),
         }
     }
 }
 
 /// The processes a supervisor's restart rules may name.
-pub const SUPERVISED_PROCESSES: [&str; 7] = ["plant", "sensor", "friction", "position", "torque", "valve", "recorder"];
+pub const SUPERVISED_PROCESSES: [&str; 8] = [
+    "plant", "machine", "sensor", "friction", "position", "torque", "valve", "recorder",
+];
 
 impl SupervisorConfig {
     /// The restart rule of `process`.
@@ -321,15 +335,99 @@ pub struct Config {
     pub trajectory: Trajectory,
     #[serde(default)]
     pub supervisor: SupervisorConfig,
+    /// The machine the stack drives, when it is not the simulated plant:
+    /// here a stand-in process with its own parameters and effects (on the
+    /// vehicle, the machine's devices). With it, the simulated plant waits
+    /// in standby and takes over when the machine is lost.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<MachineConfig>,
 }
 
+/// The machine stand-in: the simulated plant's parameters, overridden.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct MachineConfig {
+    /// `[plant]` keys that differ on the machine.
+    pub plant: toml::Table,
+    /// The machine's own effects (the model's `[effects]` do not apply).
+    pub effects: EffectsConfig,
+    /// Its sensor noise seed, for a machine that is not the model's twin.
+    pub seed: Option<u64>,
+    /// The stand-in's sensor bus goes silent this long after it starts, as
+    /// a lost CAN bus would: for trying the fallback.
+    pub bus_lost_after_s: Option<f64>,
+}
+
+/// How deep `base = "FILE"` may chain.
+const MAX_BASE_DEPTH: usize = 4;
+
 impl Config {
+    /// Loads a config file. A file may start from another with
+    /// `base = "OTHER.toml"` (relative to itself) and give only what
+    /// differs: its tables are merged over the base's, key by key.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
             path: path.to_owned(),
             source,
         })?;
-        Self::parse(&text, path)
+        if !text.lines().any(|l| l.trim_start().starts_with("base")) {
+            return Self::parse(&text, path);
+        }
+        let table = Self::load_table(path, &text, 0)?;
+        let config = Config::deserialize(toml::Value::Table(table)).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            message: e.to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    fn load_table(path: &Path, text: &str, depth: usize) -> Result<toml::Table, ConfigError> {
+        let parse_error = |message: String| ConfigError::Parse {
+            path: path.to_owned(),
+            message,
+        };
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        let Some(base) = table.remove("base") else {
+            return Ok(table);
+        };
+        let Some(base) = base.as_str() else {
+            return Err(parse_error("`base` must be a file name".into()));
+        };
+        if depth >= MAX_BASE_DEPTH {
+            return Err(parse_error(format!("`base` chains deeper than {MAX_BASE_DEPTH} files")));
+        }
+        let base_path = path.parent().unwrap_or(Path::new(".")).join(base);
+        let base_text = std::fs::read_to_string(&base_path).map_err(|source| ConfigError::Read {
+            path: base_path.clone(),
+            source,
+        })?;
+        let mut merged = Self::load_table(&base_path, &base_text, depth + 1)?;
+        merge_tables(&mut merged, table);
+        Ok(merged)
+    }
+
+    /// The machine stand-in's own config: this one with the machine's
+    /// plant parameters, effects and seed. `None` when there is no machine.
+    pub fn machine_plant(&self) -> Result<Option<Config>, ConfigError> {
+        let Some(machine) = &self.machine else {
+            return Ok(None);
+        };
+        let error = |message: String| ConfigError::Parse {
+            path: PathBuf::from("[machine]"),
+            message,
+        };
+        let mut plant = toml::Table::try_from(self.plant).map_err(|e| error(e.to_string()))?;
+        merge_tables(&mut plant, machine.plant.clone());
+        let mut config = self.clone();
+        config.plant =
+            PlantParams::deserialize(toml::Value::Table(plant)).map_err(|e| error(format!("[machine.plant] {e}")))?;
+        config.effects = machine.effects.clone();
+        if let Some(seed) = machine.seed {
+            config.simulation.seed = seed;
+        }
+        config.machine = None;
+        Ok(Some(config))
     }
 
     /// Parses and validates; `path` only names the source in errors.
@@ -342,12 +440,12 @@ impl Config {
         Ok(config)
     }
 
-    /// The file's config, or the built-in default when no file is given.
     /// The config as TOML, for a recording's metadata.
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_else(|e| format!("# the config cannot be written as TOML: {e}"))
     }
 
+    /// The file's config, or the built-in default when no file is given.
     pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
         match path {
             Some(path) => Self::load(path),
@@ -380,6 +478,24 @@ impl Config {
         self.sensor.validate().map_err(plant("sensor"))?;
         self.effects.build().map_err(plant("effects"))?;
         self.trajectory.validate().map_err(control("trajectory"))?;
+        if let Some(machine) = self.machine_plant().map_err(|e| match e {
+            ConfigError::Parse { message, .. } => ConfigError::Parse {
+                path: path.to_owned(),
+                message,
+            },
+            other => other,
+        })? {
+            machine.plant.validate().map_err(plant("machine.plant"))?;
+            machine.effects.build().map_err(plant("machine.effects"))?;
+        }
+        if let Some(after) = self.machine.as_ref().and_then(|m| m.bus_lost_after_s) {
+            if !(after.is_finite() && after > 0.0) {
+                return Err(ConfigError::Parse {
+                    path: path.to_owned(),
+                    message: format!("[machine] bus_lost_after_s must be positive, got {after}"),
+                });
+            }
+        }
         let t = &self.timing;
         if !(t.control_rate_hz.is_finite() && t.control_rate_hz > 0.0 && t.integration_rate_hz.is_finite()) {
             return Err(ConfigError::Timing {
@@ -412,11 +528,28 @@ impl Config {
             ("restart_backoff_initial_ms", sup.restart_backoff_initial_ms),
             ("restart_backoff_max_ms", sup.restart_backoff_max_ms),
             ("stop_timeout_ms", sup.stop_timeout_ms),
+            ("machine_lost_after_periods", sup.machine_lost_after_periods),
+            ("misbehaving_after_periods", sup.misbehaving_after_periods),
         ] {
             if value == 0 {
                 return Err(ConfigError::Supervisor {
                     path: path.to_owned(),
                     reason: format!("{name} must be above 0"),
+                });
+            }
+        }
+        for (stage, variant) in &sup.fallback_variants {
+            let allowed: &[&str] = match stage.as_str() {
+                "position" => &["pid", "mfc"],
+                "torque" => &["pid", "hinf"],
+                _ => &[],
+            };
+            if !allowed.contains(&variant.as_str()) {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "fallback_variants.{stage} = `{variant}`: the stages are `position` (pid, mfc) and `torque` (pid, hinf)"
+                    ),
                 });
             }
         }
@@ -464,9 +597,52 @@ impl Config {
 
 pub const DEFAULT_SIM_TOML: &str = include_str!("../../../config/sim.toml");
 
+/// Merges `over` into `base`: tables key by key, anything else replaced.
+fn merge_tables(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_machine_config_starts_from_its_base_and_overrides_the_plant() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/machine.toml");
+        let config = Config::load(&path).expect("config/machine.toml");
+        assert_eq!(config.plant.inertia, 20.0, "the model is sim.toml's");
+        assert_eq!(config.supervisor.machine_lost_after_periods, 10);
+        let machine = config.machine_plant().expect("valid").expect("a machine");
+        assert_eq!(machine.plant.inertia, 22.0);
+        assert_eq!(machine.plant.supply_pressure, config.plant.supply_pressure);
+        assert!(machine.effects.0.contains_key("coulomb_friction"));
+        assert!(config.effects.0.is_empty());
+
+        let dir = std::env::temp_dir().join(format!("hydractl-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let bad = dir.join("bad.toml");
+        std::fs::write(
+            &bad,
+            format!(
+                "base = {:?}\n[machine.plant]\ninertai = 1.0\n",
+                path.display().to_string()
+            ),
+        )
+        .expect("write");
+        let err = Config::load(&bad).expect_err("a misspelt key").to_string();
+        assert!(err.contains("machine.plant") && err.contains("inertai"), "{err}");
+        std::fs::write(&bad, "base = \"missing.toml\"\n").expect("write");
+        let err = Config::load(&bad).expect_err("a missing base").to_string();
+        assert!(err.contains("missing.toml"), "{err}");
+        std::fs::remove_dir_all(dir).ok();
+    }
 
     #[test]
     fn built_in_default_parses() {

@@ -378,8 +378,11 @@ impl ValveFaults {
 pub struct ValveStage {
     shaper: ValveShaper,
     max_age: u64,
-    /// Readings received since the last command.
+    /// Readings received since the last command, before any command.
     readings_since_command: u64,
+    /// The newest reading a command answered: the age of the command in
+    /// effect is counted in readings from it, whenever it arrived.
+    newest_command_seq: Option<u64>,
     /// The most recent readings, a ring: (sequence number, valid).
     recent: [(u64, bool); RECENT_READINGS],
     next_slot: usize,
@@ -418,6 +421,7 @@ impl ValveStage {
                 .map_err(in_section("control.valve"))?,
             max_age: guard.max_age_periods,
             readings_since_command: 0,
+            newest_command_seq: None,
             recent: [(0, false); RECENT_READINGS],
             next_slot: 0,
             filled: 0,
@@ -441,14 +445,16 @@ impl ValveStage {
             invalid_sensor: reading != Some(true),
         };
         self.readings_since_command = 0;
+        self.newest_command_seq = Some(self.newest_command_seq.map_or(seq, |c| c.max(seq)));
         if faults.any() {
             return (self.neutral(), faults);
         }
         (self.shaper.update(requested), faults)
     }
 
-    /// A new sensor reading `seq`: after more than `max_age` readings with no
-    /// command, the valve goes to neutral (`Some`).
+    /// A new sensor reading `seq`: when more than `max_age` readings have
+    /// come after the one the newest command answered (whenever that
+    /// command arrived), the valve goes to neutral (`Some`).
     pub fn on_sensor(&mut self, seq: u64, valid: bool) -> Option<(f64, ValveFaults)> {
         // A sequence going backwards is a restarted plant: forget the old run.
         if self.filled > 0 {
@@ -456,13 +462,18 @@ impl ValveStage {
             if seq < newest {
                 self.filled = 0;
                 self.next_slot = 0;
+                self.newest_command_seq = None;
             }
         }
         self.recent[self.next_slot] = (seq, valid);
         self.next_slot = (self.next_slot + 1) % RECENT_READINGS;
         self.filled = (self.filled + 1).min(RECENT_READINGS);
         self.readings_since_command += 1;
-        if self.readings_since_command > self.max_age {
+        let stale = match self.newest_command_seq {
+            Some(command) => self.readings_after(command) > self.max_age,
+            None => self.readings_since_command > self.max_age,
+        };
+        if stale {
             return Some(self.stale());
         }
         None
@@ -564,6 +575,19 @@ mod tests {
         assert_eq!((command, faults.stale), (0.0, true));
         let (command, faults) = v.on_silence();
         assert_eq!((command, faults.stale), (0.0, true));
+    }
+
+    #[test]
+    fn a_late_last_command_still_ages_from_its_own_reading() {
+        // The controller's last command, for reading 10, came after reading
+        // 11 had arrived (it was slow), and then the controller died.
+        let mut v = valve();
+        v.on_sensor(10, true);
+        v.on_sensor(11, true);
+        v.on_command(10, 0.05);
+        assert!(v.on_sensor(12, true).is_none());
+        assert!(v.on_sensor(13, true).is_none());
+        assert!(v.on_sensor(14, true).is_some(), "four readings after reading 10");
     }
 
     #[test]

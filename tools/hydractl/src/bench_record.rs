@@ -59,6 +59,7 @@ fn cycles(n: usize) -> Result<Vec<Cycle>> {
                     p_b: r.p_b * 1e5,
                     true_angle: r.theta_true,
                     late_commands: 0,
+                    ..PlantReading::default()
                 },
                 sensor: SensorSample {
                     sensor_seq: seq,
@@ -70,7 +71,7 @@ fn cycles(n: usize) -> Result<Vec<Cycle>> {
                     p_b: r.p_b * 1e5,
                     torque: r.torque,
                     valid: 7,
-                    reserved: 0,
+                    source: 0,
                 },
                 friction: FrictionSample {
                     sensor_seq: seq,

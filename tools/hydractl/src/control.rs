@@ -1,10 +1,11 @@
-//! `hydractl swap` and `hydractl status`: talking to a running stack.
+//! `hydractl swap`, `hydractl plant` and `hydractl status`: talking to a
+//! running stack.
 
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, CommandClient, Reader, RunScope, PREFIX_ENV};
-use hydractl_samples::{code, name_str, service, SupervisorReply, SupervisorRequest, SupervisorStatus};
+use hydractl_samples::{code, name_str, service, source, SupervisorReply, SupervisorRequest, SupervisorStatus};
 use serde::Serialize;
 
 #[derive(clap::Args)]
@@ -50,25 +51,57 @@ pub fn swap(args: SwapArgs) -> Result<()> {
             args.variant
         );
     };
-    let bus = open_run("swap")?;
+    ask_supervisor("swap", SupervisorRequest { stage, variant }, args.timeout)
+}
+
+#[derive(clap::Args)]
+pub struct PlantArgs {
+    /// `sim`: run on the simulated plant; `machine`: back to the machine.
+    to: String,
+    /// Seconds to wait for the supervisor's answer.
+    #[arg(long, default_value_t = 5.0)]
+    timeout: f64,
+}
+
+/// Moves the loop to the simulated plant or back to the machine.
+pub fn plant(args: PlantArgs) -> Result<()> {
+    let variant = match args.to.as_str() {
+        "sim" | "simulation" => source::SIMULATION,
+        "machine" => source::MACHINE,
+        other => bail!("no plant `{other}`: `sim` or `machine`"),
+    };
+    ask_supervisor(
+        "plant",
+        SupervisorRequest {
+            stage: code::STAGE_PLANT,
+            variant,
+        },
+        args.timeout,
+    )
+}
+
+/// Sends `request` to the supervisor of the run and prints its answer; a
+/// refusal is an error that says why.
+fn ask_supervisor(what: &str, request: SupervisorRequest, timeout: f64) -> Result<()> {
+    let bus = open_run(what)?;
     let client: CommandClient<SupervisorRequest, SupervisorReply> =
         CommandClient::open(&bus, service::SUPERVISOR_COMMAND)?;
-    let pending = client.send(SupervisorRequest { stage, variant })?;
+    let pending = client.send(request)?;
     if pending.servers() == 0 {
         bail!("the supervisor is not taking commands");
     }
-    let deadline = Instant::now() + Duration::from_secs_f64(args.timeout.max(0.1));
+    let deadline = Instant::now() + Duration::from_secs_f64(timeout.max(0.1));
     while Instant::now() < deadline {
         if let Some(answer) = pending.try_receive()? {
             let message = name_str(&answer.message);
             if answer.accepted == 0 {
-                bail!("swap refused: {message}");
+                bail!("{what} refused: {message}");
             }
             return crate::emit(&format!("{message}\n"));
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    bail!("no answer from the supervisor within {} s", args.timeout)
+    bail!("no answer from the supervisor within {timeout} s")
 }
 
 #[derive(Serialize)]
@@ -120,7 +153,10 @@ pub fn status(args: StatusArgs) -> Result<()> {
     if args.json {
         return crate::emit(&(serde_json::to_string_pretty(&view)? + "\n"));
     }
-    let mut text = format!("plant: {}\n", view.plant);
+    let mut text = match view.plant {
+        "simulation" => "plant: SIMULATION (the loop drives the simulated plant, not the machine)\n".to_owned(),
+        other => format!("plant: {other}\n"),
+    };
     text += &format!(
         "  {:<12} {:>8} {:<10} {:<8} {:>8}\n",
         "process", "pid", "variant", "health", "restarts"

@@ -42,6 +42,8 @@ enum Command {
     Model(model::ModelCommand),
     /// Swap a controller variant while the loop runs: `swap position mfc`, `swap torque hinf`, back with `pid`.
     Swap(control::SwapArgs),
+    /// Move the running loop to the simulated plant (`plant sim`) or back to the machine (`plant machine`).
+    Plant(control::PlantArgs),
     /// The running stack: processes, pids, variants in charge, health, restarts, plant.
     Status(control::StatusArgs),
     /// Attach a recorder to the run already alive: every sample to MCAP.
@@ -199,6 +201,7 @@ fn main() -> Result<()> {
         Command::Ident(IdentCommand::Tf(args)) => ident_tf(args),
         Command::Model(command) => model::run(command),
         Command::Swap(args) => control::swap(args),
+        Command::Plant(args) => control::plant(args),
         Command::Status(args) => control::status(args),
         Command::Record(args) => recording::record(args),
         Command::Replay(args) => recording::replay(args),

@@ -109,6 +109,10 @@ struct RunSummary {
     swaps: Vec<SwapSummary>,
     /// Swaps asked for that did not happen: the running controller stayed.
     swap_failures: Vec<SwapSummary>,
+    /// The plant the loop drove at the end: `machine` or `simulation`.
+    plant: &'static str,
+    /// Each change of plant: the machine lost, or asked for.
+    plant_switches: Vec<PlantSwitchSummary>,
     /// What the recording holds, read back from its file(s) after the run.
     #[serde(skip_serializing_if = "Option::is_none")]
     recording: Option<RecordingReport>,
@@ -127,9 +131,22 @@ struct RecordingReport {
 }
 
 #[derive(Serialize)]
+struct PlantSwitchSummary {
+    from: String,
+    to: String,
+    /// `machine lost` or `asked`.
+    cause: &'static str,
+    /// The first reading from the new plant.
+    at_seq: u64,
+    /// For a lost machine: from its last reading to the switch.
+    detected_after_ms: f64,
+}
+
+#[derive(Serialize)]
 struct FaultSummary {
     process: String,
-    /// `crash` (it exited) or `hang` (no output while its input flowed).
+    /// `crash` (it exited), `hang` (no output while its input flowed) or
+    /// `misbehaving` (the valve rejected its commands, reading after reading).
     kind: &'static str,
     pid: u32,
     /// The last reading it answered.
@@ -229,6 +246,15 @@ pub fn run(args: RunArgs) -> Result<()> {
             r.files.join(", ")
         );
     }
+    for switch in &summary.plant_switches {
+        eprintln!(
+            "plant: {} → {} ({}) from reading {}",
+            switch.from, switch.to, switch.cause, switch.at_seq
+        );
+    }
+    if summary.plant == "simulation" && !summary.plant_switches.is_empty() {
+        eprintln!("the run ended on the SIMULATED plant, not the machine");
+    }
     crate::emit(&format!(
         "{} cycles, {} deadline misses, latency p50 {} µs p99 {} µs p99.9 {} µs max {:.0} µs, tracking error rms {:.4} rad max {:.4} rad, {} restart(s)\n",
         summary.cycles,
@@ -269,6 +295,10 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 4)?;
     let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
     let (mut swaps, mut swap_failures, mut faults_seen) = (Vec::new(), Vec::new(), Vec::new());
+    let mut plant_switches = Vec::new();
+    let mut on_simulation = true;
+    // Each plant counts its own late commands.
+    let mut late_by_source = [0u64; 2];
     let mut failure = None;
     let exit = run_loop(&[], Some(Duration::from_millis(10)), |_| {
         let mut step = || -> Result<Flow> {
@@ -298,7 +328,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 tracking.max_abs = tracking.max_abs.max(e.abs());
             }
             if let Some(p) = plant.latest()? {
-                late = p.late_commands;
+                late_by_source[usize::from(p.source == hydractl_samples::source::MACHINE)] = p.late_commands;
+                late = late_by_source.iter().sum();
             }
             if let Some(t) = torque.latest()? {
                 if inner_variant != "bypassed" {
@@ -307,6 +338,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
             }
             if let Some(s) = status.latest()? {
                 merge_status(&mut processes, &s);
+                on_simulation = s.plant_is_simulation != 0;
             }
             while let Some(e) = events.next()? {
                 let swap = SwapSummary {
@@ -320,11 +352,31 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                     loop_step_after: e.loop_step_after,
                 };
                 match e.kind {
+                    code::EVENT_FALLBACK | code::EVENT_PLANT_SWITCH => {
+                        let lost = e.kind == code::EVENT_FALLBACK;
+                        if lost {
+                            eprintln!(
+                                "\nthe machine is lost: the loop now runs on the SIMULATED plant from reading {}",
+                                e.sensor_seq
+                            );
+                        }
+                        plant_switches.push(PlantSwitchSummary {
+                            from: swap.from,
+                            to: swap.to,
+                            cause: if lost { "machine lost" } else { "asked" },
+                            at_seq: e.sensor_seq,
+                            detected_after_ms: e.detected_after_ns as f64 * 1e-6,
+                        });
+                    }
                     code::EVENT_SWAP => swaps.push(swap),
                     code::EVENT_SWAP_FAILED => swap_failures.push(swap),
-                    code::EVENT_CRASH | code::EVENT_HANG => faults_seen.push(FaultSummary {
+                    code::EVENT_CRASH | code::EVENT_HANG | code::EVENT_MISBEHAVING => faults_seen.push(FaultSummary {
                         process: name_str(&e.process).to_owned(),
-                        kind: if e.kind == code::EVENT_CRASH { "crash" } else { "hang" },
+                        kind: match e.kind {
+                            code::EVENT_CRASH => "crash",
+                            code::EVENT_HANG => "hang",
+                            _ => "misbehaving",
+                        },
                         pid: e.pid,
                         last_seq: e.sensor_seq,
                         detected_after_ms: e.detected_after_ns as f64 * 1e-6,
@@ -343,8 +395,9 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 last_print = now;
                 cycles_at_last_print = cycles;
                 let line = format!(
-                    "t {:6.1} s  loop {:6.0} Hz  misses {}  latency p50 {:4} µs p99 {:4} µs  error rms {:.4} max {:.4} rad  position {} torque {}  restarts: {}",
+                    "t {:6.1} s  plant {}  loop {:6.0} Hz  misses {}  latency p50 {:4} µs p99 {:4} µs  error rms {:.4} max {:.4} rad  position {} torque {}  restarts: {}",
                     now.saturating_duration_since(started).as_secs_f64(),
+                    if on_simulation { "SIMULATION" } else { "machine" },
                     rate,
                     late,
                     latency.quantile_us(0.5),
@@ -404,6 +457,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         faults: faults_seen,
         swaps,
         swap_failures,
+        plant: if on_simulation { "simulation" } else { "machine" },
+        plant_switches,
         recording: None,
     })
 }

@@ -1,0 +1,241 @@
+//! The live plant, paced in real time at the control rate: the simulated
+//! rotator (`plant`), or the machine's stand-in (`machine`), a plant with
+//! its own parameters and effects that stands in for the hardware here.
+//!
+//! Each period the plant in charge publishes the sensors' readings, waits
+//! (bounded) for the valve command derived from them, and integrates one
+//! period with it, as the offline simulator does. A command that never
+//! comes in time is counted as a deadline miss and the valve holds its last
+//! command, as a real valve holds its current; with none for longer than
+//! the valve guard's age, the valve amplifier's own watchdog drives it to
+//! neutral. When the computer stalls, the plant pauses or catches up, as
+//! `timing.stall_policy` says.
+//!
+//! The plant seat ([`PlantSeat`]) decides which of the two publishes the
+//! loop's readings. The simulated plant in standby only watches the loop's
+//! last measured state; when it takes over, it starts from that state with
+//! the valve neutral. The machine out of charge goes on existing: its valve
+//! neutral, its readings on the standby service.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use hydractl_bus::{clock, Inlet, Outlet, Reader};
+use hydractl_samples::{service, source, Handover, PlantReading, SensorSample, ValveSample};
+use hydractl_sim::{build_plant, StallPolicy};
+
+use crate::handover::{PlantSeat, SeatChange};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlantKind {
+    Simulation,
+    Machine,
+}
+
+pub fn run(kind: PlantKind) -> Result<()> {
+    let name = match kind {
+        PlantKind::Simulation => "plant",
+        PlantKind::Machine => "machine",
+    };
+    let started = crate::start(name)?;
+    let config = match kind {
+        PlantKind::Simulation => started.config.clone(),
+        PlantKind::Machine => started
+            .config
+            .machine_plant()?
+            .context("machine: the config has no [machine] section")?,
+    };
+    let source_code = match kind {
+        PlantKind::Simulation => source::SIMULATION,
+        PlantKind::Machine => source::MACHINE,
+    };
+    let bus = &started.bus;
+    let (mut plant, mut sensors) = build_plant(&config, &[])?;
+    let readings: Outlet<PlantReading> = Outlet::open(bus, service::PLANT_READING)?;
+    let standby_readings: Outlet<PlantReading> = Outlet::open(bus, service::PLANT_STANDBY)?;
+    let stream: Reader<PlantReading> = Reader::open(bus, service::PLANT_READING, 4)?;
+    let estimates: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
+    let handovers: Reader<Handover> = Reader::open(bus, service::HANDOVER, 2)?;
+    let valve: Inlet<ValveSample> = Inlet::open(bus, service::VALVE, 8)?;
+    let mut seat = PlantSeat::new(!started.args.standby);
+    // A restarted plant resumes from what the loop last saw of it: its
+    // sequence goes on (the reference is a function of it) and its state
+    // starts from the last reading, at rest.
+    let mut seq = 0u64;
+    if let Some(resume) = started.args.resume {
+        seq = resume.seq + 1;
+        let mut state = plant.state();
+        state.angle = resume.angle;
+        state.load_angle = resume.angle;
+        state.p_a = resume.p_a;
+        state.p_b = resume.p_b;
+        plant.reset_to(state);
+        sensors.home(resume.angle);
+    }
+    let period = Duration::from_secs_f64(config.timing.control_period());
+    let period_ns = period.as_nanos() as u64;
+    let policy = config.timing.stall_policy;
+    let command_timeout = match policy {
+        StallPolicy::Pause => period.mul_f64(config.timing.command_timeout_periods),
+        // Real time waits for no one: the command must come within the period.
+        StallPolicy::CatchUp => period.mul_f64(0.9),
+    };
+    let substeps = config.timing.substeps();
+    let bus_lost_at = match kind {
+        PlantKind::Machine => started
+            .config
+            .machine
+            .as_ref()
+            .and_then(|m| m.bus_lost_after_s)
+            .map(|s| Instant::now() + Duration::from_secs_f64(s)),
+        PlantKind::Simulation => None,
+    };
+    let node = bus.node();
+
+    let mut command = 0.0;
+    let mut late_commands = 0u64;
+    // The valve amplifier's own watchdog: with no fresh command for longer
+    // than the valve process's guard allows, the spool is driven to
+    // neutral (a dead valve process must not leave it open).
+    let amplifier_timeout = config.control.valve_guard.max_age_periods + 1;
+    let mut without_command = 0u64;
+    let mut loop_running = false;
+    let mut last_measured: Option<PlantReading> = None;
+    let mut last_velocity = 0.0;
+    let mut next_tick = Instant::now();
+    loop {
+        // Pace: sleep until this period starts; a signal ends the run.
+        if node.wait(next_tick.saturating_duration_since(Instant::now())).is_err() {
+            break;
+        }
+        let behind = Instant::now().saturating_duration_since(next_tick);
+        if behind >= period {
+            match policy {
+                // The simulation's time is the loop's: resume from now,
+                // without a burst of readings to catch up.
+                StallPolicy::Pause => next_tick = Instant::now(),
+                // The machine ran on with the valve holding its command.
+                StallPolicy::CatchUp => {
+                    let overdue = (behind.as_nanos() / period.as_nanos()) as u64;
+                    plant.advance(command, substeps * overdue as usize);
+                    seq += overdue;
+                    next_tick += period * overdue as u32;
+                    if loop_running {
+                        late_commands += overdue;
+                    }
+                }
+            }
+        }
+        if let Some(r) = stream.newest_by(|r| r.sensor_seq)? {
+            last_measured = Some(r);
+        }
+        if let Some(s) = estimates.latest()? {
+            last_velocity = s.velocity;
+        }
+        let change = seat.update(
+            handovers.latest()?,
+            last_measured.map(|r| r.sensor_seq),
+            seq,
+            clock::now_ns(),
+            period_ns,
+        );
+        match change {
+            Some(SeatChange::Take { at_seq }) => {
+                eprintln!("{name}: drives the loop from reading {at_seq}");
+                if let (PlantKind::Simulation, Some(r)) = (kind, last_measured) {
+                    // From the last measured state, the valve neutral.
+                    let mut state = plant.state();
+                    state.spool = 0.0;
+                    state.spool_rate = 0.0;
+                    state.angle = r.angle;
+                    state.load_angle = r.angle;
+                    state.velocity = last_velocity;
+                    state.load_velocity = last_velocity;
+                    state.p_a = r.p_a;
+                    state.p_b = r.p_b;
+                    state.stuck = false;
+                    plant.reset_to(state);
+                    sensors.home(r.angle);
+                }
+                seq = at_seq;
+                command = 0.0;
+                without_command = 0;
+                loop_running = false;
+                next_tick = Instant::now();
+            }
+            Some(SeatChange::Leave) => command = 0.0,
+            None => {}
+        }
+        let bus_lost = bus_lost_at.is_some_and(|at| Instant::now() >= at);
+        if !seat.in_charge() || bus_lost {
+            if kind == PlantKind::Machine {
+                // The machine exists whether or not it drives the loop: its
+                // valve neutral, its readings (if its bus works) on standby.
+                let state = plant.state();
+                let raw = sensors.read(&state);
+                if !bus_lost {
+                    standby_readings.publish(PlantReading {
+                        sensor_seq: seq,
+                        sensor_time_ns: clock::now_ns(),
+                        angle: raw.angle,
+                        p_a: raw.p_a,
+                        p_b: raw.p_b,
+                        true_angle: state.angle,
+                        late_commands,
+                        source: source_code,
+                        reserved: 0,
+                    })?;
+                }
+                command = 0.0;
+                plant.advance(command, substeps);
+                seq += 1;
+            }
+            next_tick += period;
+            continue;
+        }
+        let state = plant.state();
+        let raw = sensors.read(&state);
+        readings.publish(PlantReading {
+            sensor_seq: seq,
+            sensor_time_ns: clock::now_ns(),
+            angle: raw.angle,
+            p_a: raw.p_a,
+            p_b: raw.p_b,
+            true_angle: state.angle,
+            late_commands,
+            source: source_code,
+            reserved: 0,
+        })?;
+        let deadline = Instant::now() + command_timeout;
+        let mut fresh = false;
+        while !fresh {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            match valve.wait_latest(remaining)? {
+                Some(sample) if sample.sensor_seq >= seq => {
+                    command = sample.command;
+                    fresh = true;
+                }
+                Some(sample) => command = sample.command,
+                None => {}
+            }
+            if remaining.is_zero() {
+                break;
+            }
+        }
+        // Before the first command the stages are still starting: not a miss.
+        if fresh {
+            loop_running = true;
+            without_command = 0;
+        } else if loop_running {
+            late_commands += 1;
+            without_command += 1;
+            if without_command > amplifier_timeout {
+                command = 0.0;
+            }
+        }
+        plant.advance(command, substeps);
+        next_tick += period;
+        seq += 1;
+    }
+    Ok(())
+}
