@@ -11,10 +11,22 @@ use hydractl_samples::{code, name_str, service, source, PlantReading, SensorSamp
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
 
+/// Lost after 50 periods here, not machine.toml's 10: on a loaded 2-core
+/// CI machine the stand-in, one process among eleven, can stall for 10 ms
+/// and be taken for lost before its bus goes silent.
+const LOST_AFTER_PERIODS: u64 = 50;
+
 fn machine_config(dir: &Path, extra: &str) -> PathBuf {
     let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/machine.toml");
     let path = dir.join("machine.toml");
-    std::fs::write(&path, format!("base = {:?}\n{extra}", base.display().to_string())).expect("config");
+    std::fs::write(
+        &path,
+        format!(
+            "base = {:?}\n[supervisor]\nmachine_lost_after_periods = {LOST_AFTER_PERIODS}\n{extra}",
+            base.display().to_string()
+        ),
+    )
+    .expect("config");
     path
 }
 
@@ -132,14 +144,16 @@ fn a_lost_machine_is_replaced_by_the_simulated_plant_from_its_last_state() {
         (switches[0]["from"].as_str(), switches[0]["to"].as_str()),
         (Some("machine"), Some("simulation"))
     );
-    // Lost after 10 periods of silence, seen on the supervisor's 5 ms tick.
+    // Lost after its periods of silence, seen on the supervisor's 5 ms tick.
     let detected = switches[0]["detected_after_ms"].as_f64().expect("ms");
-    assert!((10.0..40.0).contains(&detected), "{detected} ms");
+    let lost_after = LOST_AFTER_PERIODS as f64;
+    assert!((lost_after..lost_after + 40.0).contains(&detected), "{detected} ms");
     assert!(summary["faults"].as_array().expect("faults").is_empty(), "{summary}");
 
     let seat = seat_of(&recording);
     assert_one_plant_at_a_time(&seat);
     let at = switches[0]["at_seq"].as_u64().expect("at_seq");
+    assert!(at > 1500, "lost when its bus went silent (2 s), not before: {at}");
     let last_machine = seat
         .readings
         .iter()
