@@ -302,7 +302,8 @@ fn supervise(
                         &why,
                         now,
                     )?;
-                    last_answer_ns[0] = clock::now_ns();
+                    // The plant's own output clock stays where the machine
+                    // left it: downstream waits for readings, not hung.
                     faults[0] = None;
                     if crashed {
                         if let Some(spare) = &mut seat.spare {
@@ -444,7 +445,6 @@ fn supervise(
             let request = match commands.receive()? {
                 Some(r) if r.request().stage == code::STAGE_PLANT => {
                     seat.on_request(r, children, swaps, last_reading.map(|r| r.sensor_seq), now)?;
-                    last_answer_ns[0] = clock::now_ns();
                     None
                 }
                 other => other,
