@@ -21,6 +21,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use hydractl_bus::{clock, Inlet, Outlet, Reader};
+use hydractl_plant::{Plant, SensorModel};
 use hydractl_samples::{service, source, Handover, PlantReading, SensorSample, ValveSample};
 use hydractl_sim::{build_plant, StallPolicy};
 
@@ -171,20 +172,9 @@ pub fn run(kind: PlantKind) -> Result<()> {
             if kind == PlantKind::Machine {
                 // The machine exists whether or not it drives the loop: its
                 // valve neutral, its readings (if its bus works) on standby.
-                let state = plant.state();
-                let raw = sensors.read(&state);
+                let reading = read_sensors(&plant, &mut sensors, seq, late_commands, source_code);
                 if !bus_lost {
-                    standby_readings.publish(PlantReading {
-                        sensor_seq: seq,
-                        sensor_time_ns: clock::now_ns(),
-                        angle: raw.angle,
-                        p_a: raw.p_a,
-                        p_b: raw.p_b,
-                        true_angle: state.angle,
-                        late_commands,
-                        source: source_code,
-                        reserved: 0,
-                    })?;
+                    standby_readings.publish(reading)?;
                 }
                 command = 0.0;
                 plant.advance(command, substeps);
@@ -193,19 +183,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
             next_tick += period;
             continue;
         }
-        let state = plant.state();
-        let raw = sensors.read(&state);
-        readings.publish(PlantReading {
-            sensor_seq: seq,
-            sensor_time_ns: clock::now_ns(),
-            angle: raw.angle,
-            p_a: raw.p_a,
-            p_b: raw.p_b,
-            true_angle: state.angle,
-            late_commands,
-            source: source_code,
-            reserved: 0,
-        })?;
+        readings.publish(read_sensors(&plant, &mut sensors, seq, late_commands, source_code))?;
         let deadline = Instant::now() + command_timeout;
         let mut fresh = false;
         while !fresh {
@@ -238,4 +216,21 @@ pub fn run(kind: PlantKind) -> Result<()> {
         seq += 1;
     }
     Ok(())
+}
+
+/// The sensors' reading of the plant's present state, as published.
+fn read_sensors(plant: &Plant, sensors: &mut SensorModel, seq: u64, late_commands: u64, source: u32) -> PlantReading {
+    let state = plant.state();
+    let raw = sensors.read(&state);
+    PlantReading {
+        sensor_seq: seq,
+        sensor_time_ns: clock::now_ns(),
+        angle: raw.angle,
+        p_a: raw.p_a,
+        p_b: raw.p_b,
+        true_angle: state.angle,
+        late_commands,
+        source,
+        reserved: 0,
+    }
 }
