@@ -28,6 +28,16 @@ pub struct SwitchQuality {
     pub loop_step_after: f64,
 }
 
+/// Commands the valve rejected as garbage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Rejected {
+    pub count: u64,
+    /// The newest rejected command's reading.
+    pub newest: Option<u64>,
+    /// The garbage flags they were rejected for, together.
+    pub why: u32,
+}
+
 /// Readings from the switch counted as its transient.
 pub const TRANSIENT: u64 = 5;
 
@@ -54,23 +64,23 @@ impl ValveLog {
 
     /// Among the valve's samples for the last `window` readings, and after
     /// reading `after`, those whose command the valve rejected as garbage
-    /// (`garbage` flags): how many, and the newest.
-    pub fn rejected(&self, garbage: u32, window: u64, after: Option<u64>) -> (u64, Option<u64>) {
+    /// (`garbage` flags).
+    pub fn rejected(&self, garbage: u32, window: u64, after: Option<u64>) -> Rejected {
+        let mut rejected = Rejected::default();
         let Some(newest) = self.newest_seq() else {
-            return (0, None);
+            return rejected;
         };
-        let mut count = 0;
-        let mut newest_rejected = None;
         for &(seq, _, faults) in self.entries.iter().rev() {
             if seq + window <= newest || after.is_some_and(|a| seq <= a) {
                 break;
             }
             if faults & garbage != 0 {
-                count += 1;
-                newest_rejected = newest_rejected.or(Some(seq));
+                rejected.count += 1;
+                rejected.newest = rejected.newest.or(Some(seq));
+                rejected.why |= faults & garbage;
             }
         }
-        (count, newest_rejected)
+        rejected
     }
 
     pub fn newest_seq(&self) -> Option<u64> {
@@ -166,11 +176,20 @@ mod tests {
         for (seq, faults) in [(1, 0), (2, 2), (3, 1), (4, 2), (5, 4)] {
             log.push(seq, 0.0, faults);
         }
-        assert_eq!(log.rejected(2 | 4, 10, None), (3, Some(5)));
-        assert_eq!(log.rejected(2 | 4, 2, None), (2, Some(5)), "readings 4 and 5");
-        assert_eq!(log.rejected(2 | 4, 10, Some(4)), (1, Some(5)), "after the one acted on");
+        let seen = |r: Rejected| (r.count, r.newest, r.why);
+        assert_eq!(seen(log.rejected(2 | 4, 10, None)), (3, Some(5), 2 | 4));
+        assert_eq!(
+            seen(log.rejected(2 | 4, 2, None)),
+            (2, Some(5), 2 | 4),
+            "readings 4 and 5"
+        );
+        assert_eq!(
+            seen(log.rejected(2 | 4, 10, Some(4))),
+            (1, Some(5), 4),
+            "after the one acted on"
+        );
         log.push(6, 0.1, 0);
-        assert_eq!(log.rejected(2 | 4, 1, None), (0, None));
+        assert_eq!(seen(log.rejected(2 | 4, 1, None)), (0, None, 0));
     }
 
     #[test]

@@ -7,7 +7,14 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use hydractl_bus::{Bus, Reader, RunScope, PREFIX_ENV};
-use hydractl_samples::{name_str, service, SupervisorStatus, ValveSample};
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use hydractl_samples::{
+    name_str, service, FrictionSample, PlantReading, PositionSample, Recordable, SensorSample, SupervisorStatus,
+    TorqueSample, ValveSample,
+};
 
 /// The live stack pins its loop to one CPU; two runs at once would share
 /// it, so the system tests take turns.
@@ -242,4 +249,127 @@ pub fn process<'a>(status: &'a serde_json::Value, name: &str) -> &'a serde_json:
         .iter()
         .find(|p| p["name"] == name)
         .unwrap_or_else(|| panic!("{name} in {status}"))
+}
+
+/// Takes the next waiting sample's sequence number.
+type NextSeq = Box<dyn Fn() -> Option<u64>>;
+
+/// The loop's services, in pipeline order.
+pub const PIPELINE_SERVICES: [&str; 6] = [
+    service::PLANT_READING,
+    service::SENSOR,
+    service::FRICTION,
+    service::POSITION,
+    service::TORQUE,
+    service::VALVE,
+];
+
+/// The sequence numbers an independent subscriber sees on each pipeline
+/// service: what was published, to compare a recording with.
+pub struct Witness {
+    readers: Vec<(&'static str, NextSeq)>,
+    pub seen: BTreeMap<&'static str, BTreeSet<u64>>,
+    _bus: Bus,
+}
+
+impl Witness {
+    pub fn open(scope: &RunScope) -> Self {
+        fn reader<T: Recordable>(bus: &Bus, name: &'static str) -> NextSeq {
+            let r: Reader<T> = Reader::open(bus, name, 256).expect("reader");
+            Box::new(move || {
+                r.next()
+                    .expect("receive")
+                    .and_then(|s| T::KIND.sequence(bytemuck::bytes_of(&s)))
+            })
+        }
+        let bus = Bus::open(scope, "witness").expect("node");
+        let readers: Vec<(&'static str, NextSeq)> = vec![
+            (
+                service::PLANT_READING,
+                reader::<PlantReading>(&bus, service::PLANT_READING),
+            ),
+            (service::SENSOR, reader::<SensorSample>(&bus, service::SENSOR)),
+            (service::FRICTION, reader::<FrictionSample>(&bus, service::FRICTION)),
+            (service::POSITION, reader::<PositionSample>(&bus, service::POSITION)),
+            (service::TORQUE, reader::<TorqueSample>(&bus, service::TORQUE)),
+            (service::VALVE, reader::<ValveSample>(&bus, service::VALVE)),
+        ];
+        Self {
+            readers,
+            seen: BTreeMap::new(),
+            _bus: bus,
+        }
+    }
+
+    pub fn poll(&mut self) {
+        for (name, next) in &self.readers {
+            while let Some(seq) = next() {
+                self.seen.entry(name).or_default().insert(seq);
+            }
+        }
+    }
+
+    /// A witness on its own thread, polling every 2 ms until
+    /// [`WitnessThread::finish`], for a test whose own loop waits.
+    pub fn in_background(scope: &RunScope) -> WitnessThread {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (scope, flag) = (scope.clone(), stop.clone());
+        let (opened_tx, opened_rx) = std::sync::mpsc::channel();
+        let thread = std::thread::spawn(move || {
+            let mut witness = Witness::open(&scope);
+            opened_tx.send(()).ok();
+            while !flag.load(Ordering::Relaxed) {
+                witness.poll();
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            witness.poll();
+            witness.seen
+        });
+        opened_rx.recv().expect("the witness opened its readers");
+        WitnessThread { stop, thread }
+    }
+}
+
+pub struct WitnessThread {
+    stop: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<BTreeMap<&'static str, BTreeSet<u64>>>,
+}
+
+impl WitnessThread {
+    /// Stops polling and returns what was seen.
+    pub fn finish(self) -> BTreeMap<&'static str, BTreeSet<u64>> {
+        self.stop.store(true, Ordering::Relaxed);
+        self.thread.join().expect("the witness thread")
+    }
+}
+
+/// A recording's sequence numbers, by topic.
+pub fn recorded_sequences(path: &Path) -> BTreeMap<String, BTreeSet<u64>> {
+    let mut recorded: BTreeMap<String, BTreeSet<u64>> = BTreeMap::new();
+    hydractl_recording::read_messages(path, |m| {
+        if let Some(seq) = m.kind.sequence(m.payload) {
+            recorded.entry(m.topic.to_owned()).or_default().insert(seq);
+        }
+        Ok(())
+    })
+    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    recorded
+}
+
+/// The run's single recording holds every sample the witness saw published
+/// on the loop's services, and the recorder dropped nothing.
+pub fn assert_recorded_everything(
+    seen: &BTreeMap<&'static str, BTreeSet<u64>>,
+    recording: &Path,
+    summary: &serde_json::Value,
+) {
+    assert_eq!(summary["recording"]["dropped"], 0, "{}", summary["recording"]);
+    assert_eq!(summary["recording"]["files"].as_array().map(Vec::len), Some(1));
+    let recorded = recorded_sequences(recording);
+    for topic in PIPELINE_SERVICES {
+        let (seen, held) = (&seen[topic], &recorded[topic]);
+        let lost: Vec<&u64> = seen.difference(held).collect();
+        eprintln!("{topic}: {} published, {} recorded", seen.len(), held.len());
+        assert!(lost.is_empty(), "{topic}: published but not recorded: {lost:?}");
+    }
 }

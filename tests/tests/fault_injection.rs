@@ -1,7 +1,9 @@
 //! Fault injection: `kill -9` of every process of the loop in turn, at
 //! seeded random moments, a hundred times in one run. Each time the fault
 //! is detected, the valve is made safe (for a controller), the process is
-//! back and the loop resumes; the run's summary accounts for every kill.
+//! back and the loop resumes; the run's summary accounts for every kill;
+//! and the run's recording holds every sample that an independent
+//! subscriber saw published, kills and all.
 
 use std::time::{Duration, Instant};
 
@@ -35,8 +37,9 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
         sim.replacen("healthy_after_ms = 5000", "healthy_after_ms = 100", 1)
             .replacen("max_restarts = 20", "max_restarts = 1000", 1)
     });
-    let summary = dir.join("summary.json");
+    let (summary, recording) = (dir.join("summary.json"), dir.join("kills.mcap"));
     let observer = Observer::open(&scope);
+    let witness = Witness::in_background(&scope);
     let mut run = start_run(
         &scope,
         &[
@@ -44,6 +47,8 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
             config_path.to_str().expect("path"),
             "--summary-json",
             summary.to_str().expect("path"),
+            "--record",
+            recording.to_str().expect("path"),
         ],
     );
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
@@ -93,7 +98,9 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
     }
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let seen = witness.finish();
     let summary: serde_json::Value = read_json(&summary);
+    assert_recorded_everything(&seen, &recording, &summary);
     let faults = summary["faults"].as_array().expect("faults");
     let accounted: Vec<(&str, u32)> = faults
         .iter()

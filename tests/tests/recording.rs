@@ -15,15 +15,6 @@ use hydractl_samples::{
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
 
-const PIPELINE: [&str; 6] = [
-    service::PLANT_READING,
-    service::SENSOR,
-    service::FRICTION,
-    service::POSITION,
-    service::TORQUE,
-    service::VALVE,
-];
-
 fn channel<'a>(summary: &'a RecordingSummary, topic: &str) -> &'a hydractl_recording::ChannelSummary {
     summary
         .channels
@@ -80,61 +71,6 @@ fn python_view(args: &[&str], path: &Path) -> Option<serde_json::Value> {
             assert!(!required, "the Python mcap reader failed: {why}");
             eprintln!("SKIPPED the Python reader check (install mcap and mcap-ros2-support, as .ci/run does): {why}");
             None
-        }
-    }
-}
-
-/// Takes the next waiting sample's sequence number.
-type NextSeq = Box<dyn Fn() -> Option<u64>>;
-
-/// The sequence numbers an independent subscriber sees on each pipeline
-/// service: what was published, to compare the recording with.
-struct Witness {
-    readers: Vec<(&'static str, NextSeq)>,
-    seen: BTreeMap<&'static str, std::collections::BTreeSet<u64>>,
-    _bus: Bus,
-}
-
-impl Witness {
-    fn open(scope: &hydractl_bus::RunScope) -> Self {
-        fn reader<T: hydractl_samples::Recordable>(bus: &Bus, name: &'static str) -> NextSeq {
-            let r: Reader<T> = Reader::open(bus, name, 256).expect("reader");
-            Box::new(move || {
-                r.next()
-                    .expect("receive")
-                    .and_then(|s| T::KIND.sequence(bytemuck::bytes_of(&s)))
-            })
-        }
-        let bus = Bus::open(scope, "witness").expect("node");
-        let readers = vec![
-            (
-                service::PLANT_READING,
-                reader::<PlantReading>(&bus, service::PLANT_READING),
-            ),
-            (service::SENSOR, reader::<SensorSample>(&bus, service::SENSOR)),
-            (
-                service::FRICTION,
-                reader::<hydractl_samples::FrictionSample>(&bus, service::FRICTION),
-            ),
-            (service::POSITION, reader::<PositionSample>(&bus, service::POSITION)),
-            (
-                service::TORQUE,
-                reader::<hydractl_samples::TorqueSample>(&bus, service::TORQUE),
-            ),
-            (service::VALVE, reader::<ValveSample>(&bus, service::VALVE)),
-        ];
-        Self {
-            readers,
-            seen: BTreeMap::new(),
-            _bus: bus,
-        }
-    }
-
-    fn poll(&mut self) {
-        for (name, next) in &self.readers {
-            while let Some(seq) = next() {
-                self.seen.entry(name).or_default().insert(seq);
-            }
         }
     }
 }
@@ -202,15 +138,7 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
 
     // Every sample the witness saw published is in the recording, and the
     // recording holds nothing else.
-    let mut recorded: BTreeMap<String, std::collections::BTreeSet<u64>> = BTreeMap::new();
-    read_messages(&file, |m| {
-        recorded
-            .entry(m.topic.to_owned())
-            .or_default()
-            .insert(m.kind.sequence(m.payload).expect("seq"));
-        Ok(())
-    })
-    .expect("read");
+    let recorded = recorded_sequences(&file);
     for (topic, seen) in &witness.seen {
         let held = &recorded[*topic];
         // A stage under load may skip a reading (it takes the newest).
@@ -234,7 +162,7 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
 
     let summary = summarize(&file).expect("the recording reads");
     assert_eq!(summary.truncated, None);
-    for topic in PIPELINE {
+    for topic in PIPELINE_SERVICES {
         let c = channel(&summary, topic);
         assert!(
             c.messages + 20 >= cycles,

@@ -218,11 +218,19 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     let _turn = serial();
     let scope = unique_scope("sigstop");
     let dir = scratch_dir("sigstop");
-    let summary = dir.join("summary.json");
+    let (summary, recording) = (dir.join("summary.json"), dir.join("sigstop.mcap"));
     let observer = Observer::open(&scope);
+    let witness = Witness::in_background(&scope);
     let mut run = start_run(
         &scope,
-        &["--duration", "30", "--summary-json", summary.to_str().expect("path")],
+        &[
+            "--duration",
+            "30",
+            "--summary-json",
+            summary.to_str().expect("path"),
+            "--record",
+            recording.to_str().expect("path"),
+        ],
     );
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     let pid = observer.pid_of("torque", Duration::from_secs(2)).expect("torque");
@@ -239,7 +247,9 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop resumes");
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let seen = witness.finish();
     let summary: serde_json::Value = read_json(&summary);
+    assert_recorded_everything(&seen, &recording, &summary);
     let faults = summary["faults"].as_array().expect("faults");
     assert_eq!(faults.len(), 1, "{summary}");
     assert_eq!(
@@ -266,11 +276,19 @@ fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
     let _turn = serial();
     let scope = unique_scope("nan");
     let dir = scratch_dir("nan");
-    let summary = dir.join("summary.json");
+    let (summary, recording) = (dir.join("summary.json"), dir.join("nan.mcap"));
     let observer = Observer::open(&scope);
+    let witness = Witness::in_background(&scope);
     let mut run = start_run(
         &scope,
-        &["--duration", "30", "--summary-json", summary.to_str().expect("path")],
+        &[
+            "--duration",
+            "30",
+            "--summary-json",
+            summary.to_str().expect("path"),
+            "--record",
+            recording.to_str().expect("path"),
+        ],
     );
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     // A second publisher on the torque service: a controller gone wrong.
@@ -314,7 +332,9 @@ fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
     );
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let seen = witness.finish();
     let summary = read_json(&summary);
+    assert_recorded_everything(&seen, &recording, &summary);
     assert!(
         summary["rms_tracking_error_rad"].as_f64().is_some_and(f64::is_finite),
         "{summary}"
@@ -408,6 +428,81 @@ fn a_controller_whose_commands_keep_being_rejected_is_restarted_into_its_fallbac
     assert!(
         faults.iter().all(|f| f["process"] == "torque"),
         "only the culprit: {summary}"
+    );
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_limit_cycling_torque_loop_is_held_neutral_and_restarted_into_its_fallback_variant() {
+    let _turn = serial();
+    let scope = unique_scope("limitcycle");
+    let dir = scratch_dir("limitcycle");
+    // The inner PID's gain 25 times the tuned one: it limit-cycles at about
+    // 5 Hz, bang-bang through the valve's whole range.
+    let config = config_from_default(&dir, "limit_cycle.toml", |sim| {
+        sim.replace("fallback_variants = {}", "fallback_variants = { torque = \"hinf\" }")
+            .replace("[control.torque.pid]\nkp = 2.0e-3", "[control.torque.pid]\nkp = 5.0e-2")
+    });
+    let (summary, recording) = (dir.join("summary.json"), dir.join("limit_cycle.mcap"));
+    let observer = Observer::open(&scope);
+    let witness = Witness::in_background(&scope);
+    let mut run = start_run(
+        &scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            "30",
+            "--summary-json",
+            summary.to_str().expect("path"),
+            "--record",
+            recording.to_str().expect("path"),
+        ],
+    );
+    // The limit cycle is found, the valve held neutral, the inner loop
+    // restarted as H∞, and the loop then runs healthy.
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let (mut limit_cycle_flags, mut healthy_after) = (0, 0);
+    while std::time::Instant::now() < deadline && healthy_after < 1000 {
+        while let Ok(Some(v)) = observer.valve.next() {
+            if v.faults & fault::LIMIT_CYCLE != 0 {
+                assert_eq!(v.command, 0.0, "neutral while limit-cycling: {v:?}");
+                limit_cycle_flags += 1;
+                healthy_after = 0;
+            } else if limit_cycle_flags > 0 && v.faults == 0 {
+                healthy_after += 1;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert!(limit_cycle_flags > 0, "the valve found the limit cycle");
+    assert!(healthy_after >= 1000, "the loop runs healthy after it");
+    assert_eq!(process(&status(&scope), "torque")["variant"], "hinf");
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let seen = witness.finish();
+    let summary = read_json(&summary);
+    assert_recorded_everything(&seen, &recording, &summary);
+    let faults = summary["faults"].as_array().expect("faults");
+    assert_eq!(faults.len(), 1, "one fault, the torque loop's: {summary}");
+    let f = &faults[0];
+    assert_eq!(
+        (&f["process"], &f["kind"], &f["restarted_as"]),
+        (
+            &serde_json::json!("torque"),
+            &serde_json::json!("limit_cycle"),
+            &serde_json::json!("hinf")
+        ),
+        "{summary}"
+    );
+    assert!(
+        f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 2),
+        "{summary}"
+    );
+    assert!(
+        f["restarted_after_ms"].as_f64().is_some_and(|ms| ms < 100.0),
+        "{summary}"
     );
     drop(observer);
     std::fs::remove_dir_all(dir).ok();

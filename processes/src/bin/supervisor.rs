@@ -313,18 +313,18 @@ fn supervise(
                 }
             }
             cleanup_needed |= seat.tick_spare(scope, policy, now)?;
-            // A controller whose commands the valve keeps rejecting: the
-            // valve is already neutral; the controller is restarted, into
-            // its fallback variant if the config names one. The outer loop
-            // is blamed when its own output is garbage, else the stage that
-            // feeds the valve.
-            let (rejected, newest) = swaps.log.rejected(
-                fault::NOT_FINITE | fault::OUT_OF_RANGE,
+            // A controller whose commands the valve keeps rejecting (garbage,
+            // or a limit cycle): the valve is already neutral; the controller
+            // is restarted, into its fallback variant if the config names
+            // one. The outer loop is blamed when its own output is garbage,
+            // else the stage that feeds the valve.
+            let rejected = swaps.log.rejected(
+                fault::NOT_FINITE | fault::OUT_OF_RANGE | fault::LIMIT_CYCLE,
                 2 * policy.misbehaving_after_periods,
                 misbehaving_handled,
             );
-            if rejected >= policy.misbehaving_after_periods {
-                misbehaving_handled = newest;
+            if rejected.count >= policy.misbehaving_after_periods {
+                misbehaving_handled = rejected.newest;
                 let i = if !position_output_finite || children[4].variant.is_none() {
                     3
                 } else {
@@ -332,15 +332,12 @@ fn supervise(
                 };
                 let child = &mut children[i];
                 if child.is_running() {
-                    faults[i] = Some(Fault {
-                        kind: code::EVENT_MISBEHAVING,
-                        pid: child.pid().unwrap_or(0),
-                        detected_at: now,
-                        silent_for: Duration::ZERO,
-                        last_seq: newest.map(|s| s.saturating_sub(rejected)),
-                    });
-                    child.kill_hung();
-                    cleanup_needed = true;
+                    let (kind, what) = if rejected.why & fault::LIMIT_CYCLE != 0 {
+                        (code::EVENT_LIMIT_CYCLE, "limit-cycling")
+                    } else {
+                        (code::EVENT_MISBEHAVING, "garbage")
+                    };
+                    let from = child.variant;
                     if let Some(v) = policy
                         .fallback_variants
                         .get(child.name)
@@ -348,8 +345,19 @@ fn supervise(
                     {
                         child.variant = Some(code::variant_name(v));
                     }
+                    faults[i] = Some(Fault {
+                        kind,
+                        pid: child.pid().unwrap_or(0),
+                        detected_at: now,
+                        silent_for: Duration::ZERO,
+                        last_seq: rejected.newest.map(|s| s.saturating_sub(rejected.count)),
+                        variants: from.zip(child.variant),
+                    });
+                    child.kill_hung();
+                    cleanup_needed = true;
                     eprintln!(
-                        "supervisor: the valve rejected {rejected} commands in {} readings: {} misbehaves; restarting it ({})",
+                        "supervisor: the valve rejected {} commands in {} readings as {what}: {} misbehaves; restarting it ({})",
+                        rejected.count,
                         2 * policy.misbehaving_after_periods,
                         child.name,
                         child.variant.unwrap_or("-")
@@ -379,6 +387,7 @@ fn supervise(
                     detected_at: now,
                     silent_for,
                     last_seq,
+                    variants: None,
                 };
                 if child.reap() {
                     faults[i] = Some(fault(code::EVENT_CRASH));
@@ -699,6 +708,9 @@ struct Fault {
     silent_for: Duration,
     /// The last reading it answered.
     last_seq: Option<u64>,
+    /// A controller restarted for misbehaving: its variant, and the one it
+    /// was restarted into.
+    variants: Option<(&'static str, &'static str)>,
 }
 
 /// Hot swaps of the position or torque controller, asked for over
@@ -1014,6 +1026,8 @@ impl Swaps {
             kind: fault.kind,
             pid: fault.pid,
             process: fixed_name(process),
+            from: fixed_name(fault.variants.map_or("", |v| v.0)),
+            to: fixed_name(fault.variants.map_or("", |v| v.1)),
             ..SupervisorEvent::default()
         })?;
         self.event_seq += 1;

@@ -90,5 +90,8 @@ fn encode(f: ValveFaults) -> u32 {
     if f.invalid_sensor {
         bits |= fault::INVALID_SENSOR;
     }
+    if f.limit_cycle {
+        bits |= fault::LIMIT_CYCLE;
+    }
     bits
 }

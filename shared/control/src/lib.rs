@@ -6,6 +6,7 @@
 
 mod friction;
 mod hinf;
+mod limit_cycle;
 mod mfc;
 mod pid;
 mod trajectory;
@@ -14,6 +15,7 @@ mod velocity;
 
 pub use friction::{FrictionCompensator, FrictionCompensatorParams, StaticMap};
 pub use hinf::{HInfinity, HInfinityParams, PAPER_HINF_DEN, PAPER_HINF_NUM};
+pub use limit_cycle::{LimitCycleDetector, LimitCycleParams};
 pub use mfc::{Mfc, MfcParams};
 pub use pid::{Pid, PidParams};
 pub use trajectory::{Reference, Trajectory};

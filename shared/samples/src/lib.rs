@@ -77,6 +77,8 @@ pub mod fault {
     pub const OUT_OF_RANGE: u32 = 1 << 2;
     /// The sensor sample the command derives from was not valid.
     pub const INVALID_SENSOR: u32 = 1 << 3;
+    /// The requested commands limit-cycle: neutral until they stop.
+    pub const LIMIT_CYCLE: u32 = 1 << 4;
 }
 
 /// Codes of the structure and variants, for samples that report them.
@@ -102,6 +104,9 @@ pub mod code {
     /// A controller's commands were rejected by the valve, reading after
     /// reading: it was restarted (into its fallback variant, if any).
     pub const EVENT_MISBEHAVING: u32 = 6;
+    /// The valve found a controller's commands limit-cycling and held
+    /// neutral: it was restarted (into its fallback variant, if any).
+    pub const EVENT_LIMIT_CYCLE: u32 = 7;
 
     pub fn variant_name(variant: u32) -> &'static str {
         match variant {

@@ -191,6 +191,14 @@ pub struct ValveGuardParams {
     /// upstream is gone and the valve goes to neutral on its own clock.
     /// Longer than the stalls of a busy computer (up to 10 ms seen here).
     pub silence_timeout_ms: f64,
+    /// A limit cycle: `limit_cycle_reversals` reversals of the requested
+    /// command in a row, each a swing of at least `limit_cycle_swing`
+    /// (command units, peak to peak) within `limit_cycle_half_period_periods`
+    /// of the one before. The valve then stays neutral until the commands
+    /// stop (their controller replaced). 0 reversals: no check.
+    pub limit_cycle_swing: f64,
+    pub limit_cycle_half_period_periods: u64,
+    pub limit_cycle_reversals: u64,
 }
 
 impl Default for ValveGuardParams {
@@ -198,6 +206,9 @@ impl Default for ValveGuardParams {
         Self {
             max_age_periods: 3,
             silence_timeout_ms: 20.0,
+            limit_cycle_swing: 1.0,
+            limit_cycle_half_period_periods: 150,
+            limit_cycle_reversals: 12,
         }
     }
 }

@@ -5,7 +5,8 @@
 //! keeps its own state.
 
 use hydractl_control::{
-    ControlError, FrictionCompensator, HInfinity, Mfc, Pid, Reference, Trajectory, ValveShaper, VelocityEstimator,
+    ControlError, FrictionCompensator, HInfinity, LimitCycleDetector, LimitCycleParams, Mfc, Pid, Reference,
+    Trajectory, ValveShaper, VelocityEstimator,
 };
 use hydractl_plant::RawReading;
 
@@ -354,18 +355,23 @@ pub struct ValveFaults {
     pub out_of_range: bool,
     /// The sensor reading behind the command was not valid.
     pub invalid_sensor: bool,
+    /// The requested commands are limit-cycling: neutral until they stop.
+    pub limit_cycle: bool,
 }
 
 impl ValveFaults {
     pub fn any(&self) -> bool {
-        self.stale || self.not_finite || self.out_of_range || self.invalid_sensor
+        self.stale || self.not_finite || self.out_of_range || self.invalid_sensor || self.limit_cycle
     }
 }
 
 /// Valve stage: command shaping, and the last line of safety: a stale,
 /// non-finite or out-of-range command, or one derived from an invalid
 /// reading, puts the valve in neutral at once (not rate-limited) and says
-/// why. It never passes garbage on.
+/// why. It never passes garbage on. Requested commands that limit-cycle
+/// put it in neutral too, and keep it there until they stop: the
+/// supervisor then replaces their controller, whose fresh commands are
+/// judged afresh.
 ///
 /// A command's age is counted in loop periods the valve has seen (sensor
 /// readings received), not in sequence numbers: when the whole computer
@@ -387,6 +393,8 @@ pub struct ValveStage {
     recent: [(u64, bool); RECENT_READINGS],
     next_slot: usize,
     filled: usize,
+    limit_cycle: LimitCycleDetector,
+    in_limit_cycle: bool,
 }
 
 /// The longest guard the valve supports, in periods.
@@ -420,6 +428,13 @@ impl ValveStage {
             shaper: ValveShaper::new(config.control.valve, config.timing.control_period())
                 .map_err(in_section("control.valve"))?,
             max_age: guard.max_age_periods,
+            limit_cycle: LimitCycleDetector::new(LimitCycleParams {
+                swing: guard.limit_cycle_swing,
+                half_period: guard.limit_cycle_half_period_periods,
+                reversals: guard.limit_cycle_reversals,
+            })
+            .map_err(in_section("control.valve_guard"))?,
+            in_limit_cycle: false,
             readings_since_command: 0,
             newest_command_seq: None,
             recent: [(0, false); RECENT_READINGS],
@@ -437,12 +452,17 @@ impl ValveStage {
     /// drive and the faults.
     pub fn on_command(&mut self, seq: u64, requested: f64) -> (f64, ValveFaults) {
         let reading = self.reading(seq);
+        let sound = requested.is_finite() && requested.abs() <= 1.0 + 1e-9;
+        if sound {
+            self.in_limit_cycle |= self.limit_cycle.update(seq, requested);
+        }
         let faults = ValveFaults {
             stale: self.readings_after(seq) > self.max_age,
             not_finite: !requested.is_finite(),
             out_of_range: requested.is_finite() && requested.abs() > 1.0 + 1e-9,
             // A reading the valve never saw is not known to be valid.
             invalid_sensor: reading != Some(true),
+            limit_cycle: self.in_limit_cycle,
         };
         self.readings_since_command = 0;
         self.newest_command_seq = Some(self.newest_command_seq.map_or(seq, |c| c.max(seq)));
@@ -463,6 +483,7 @@ impl ValveStage {
                 self.filled = 0;
                 self.next_slot = 0;
                 self.newest_command_seq = None;
+                self.forget_limit_cycle();
             }
         }
         self.recent[self.next_slot] = (seq, valid);
@@ -486,6 +507,8 @@ impl ValveStage {
     }
 
     fn stale(&mut self) -> (f64, ValveFaults) {
+        // The commands stopped: whatever sends the next ones is judged afresh.
+        self.forget_limit_cycle();
         let faults = ValveFaults {
             stale: true,
             ..ValveFaults::default()
@@ -506,6 +529,11 @@ impl ValveStage {
     /// How many readings the valve has received after reading `seq`.
     fn readings_after(&self, seq: u64) -> u64 {
         self.entries().filter(|(s, _)| *s > seq).count() as u64
+    }
+
+    fn forget_limit_cycle(&mut self) {
+        self.limit_cycle.reset();
+        self.in_limit_cycle = false;
     }
 
     fn neutral(&mut self) -> f64 {
@@ -548,6 +576,33 @@ mod tests {
         // A command from a reading the valve never saw is not trusted either.
         let (command, faults) = v.on_command(99, 0.05);
         assert_eq!((command, faults.invalid_sensor), (0.0, true));
+    }
+
+    #[test]
+    fn a_limit_cycling_controller_is_held_neutral_until_its_commands_stop() {
+        let mut v = valve();
+        // Bang-bang at 5 Hz: a full swing every 100 readings.
+        let bang_bang = |seq: u64| if (seq / 100).is_multiple_of(2) { 0.9 } else { -0.9 };
+        let mut first_neutral = None;
+        for seq in 0..2000 {
+            v.on_sensor(seq, true);
+            let (command, faults) = v.on_command(seq, bang_bang(seq));
+            if faults.limit_cycle && first_neutral.is_none() {
+                first_neutral = Some(seq);
+            }
+            if first_neutral.is_some() {
+                assert_eq!((command, faults.limit_cycle), (0.0, true), "latched at {seq}");
+            }
+        }
+        // The 12th reversal in a row after the first, at reading 1300.
+        assert_eq!(first_neutral, Some(1300));
+        // Its controller is killed: the commands stop and the valve forgets.
+        for seq in 2000..2004 {
+            v.on_sensor(seq, true);
+        }
+        v.on_sensor(2004, true);
+        let (_, faults) = v.on_command(2004, 0.9);
+        assert!(!faults.any(), "{faults:?}");
     }
 
     #[test]

@@ -145,8 +145,10 @@ struct PlantSwitchSummary {
 #[derive(Serialize)]
 struct FaultSummary {
     process: String,
-    /// `crash` (it exited), `hang` (no output while its input flowed) or
-    /// `misbehaving` (the valve rejected its commands, reading after reading).
+    /// `crash` (it exited), `hang` (no output while its input flowed),
+    /// `misbehaving` (the valve rejected its commands as garbage, reading
+    /// after reading) or `limit_cycle` (the valve found its commands
+    /// limit-cycling and held neutral).
     kind: &'static str,
     pid: u32,
     /// The last reading it answered.
@@ -159,6 +161,9 @@ struct FaultSummary {
     /// From the detection to the new process's first output; null when
     /// its restart rule left it down.
     restarted_after_ms: Option<f64>,
+    /// A misbehaving controller: the variant it was restarted into.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    restarted_as: Option<String>,
 }
 
 #[derive(Serialize)]
@@ -370,21 +375,25 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                     }
                     code::EVENT_SWAP => swaps.push(swap),
                     code::EVENT_SWAP_FAILED => swap_failures.push(swap),
-                    code::EVENT_CRASH | code::EVENT_HANG | code::EVENT_MISBEHAVING => faults_seen.push(FaultSummary {
-                        process: name_str(&e.process).to_owned(),
-                        kind: match e.kind {
-                            code::EVENT_CRASH => "crash",
-                            code::EVENT_HANG => "hang",
-                            _ => "misbehaving",
-                        },
-                        pid: e.pid,
-                        last_seq: e.sensor_seq,
-                        detected_after_ms: e.detected_after_ns as f64 * 1e-6,
-                        valve_safe_after_periods: (e.valve_safe_after_periods != u64::MAX)
-                            .then_some(e.valve_safe_after_periods),
-                        restarted_after_ms: (e.restarted_after_ns != u64::MAX)
-                            .then_some(e.restarted_after_ns as f64 * 1e-6),
-                    }),
+                    code::EVENT_CRASH | code::EVENT_HANG | code::EVENT_MISBEHAVING | code::EVENT_LIMIT_CYCLE => {
+                        faults_seen.push(FaultSummary {
+                            process: name_str(&e.process).to_owned(),
+                            kind: match e.kind {
+                                code::EVENT_CRASH => "crash",
+                                code::EVENT_HANG => "hang",
+                                code::EVENT_LIMIT_CYCLE => "limit_cycle",
+                                _ => "misbehaving",
+                            },
+                            pid: e.pid,
+                            last_seq: e.sensor_seq,
+                            detected_after_ms: e.detected_after_ns as f64 * 1e-6,
+                            valve_safe_after_periods: (e.valve_safe_after_periods != u64::MAX)
+                                .then_some(e.valve_safe_after_periods),
+                            restarted_after_ms: (e.restarted_after_ns != u64::MAX)
+                                .then_some(e.restarted_after_ns as f64 * 1e-6),
+                            restarted_as: Some(name_str(&e.to).to_owned()).filter(|v| !v.is_empty()),
+                        });
+                    }
                     _ => {}
                 }
             }
