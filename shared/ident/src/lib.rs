@@ -2,6 +2,10 @@
 //! models to it. No IPC here.
 
 pub mod data;
+pub mod friction_map;
+pub mod mechanics;
+pub mod pid_tune;
+pub mod spectral;
 pub mod tf;
 
 pub use data::{DataError, Dataset};
