@@ -11,5 +11,5 @@ pub use config::{
     TorqueVariant, SUPERVISED_PROCESSES,
 };
 pub use hydractl_control::Reference;
-pub use simulator::{build_plant, simulate, write_csv, Record, SimError, SimulationRun, Summary};
+pub use simulator::{build_plant, simulate, simulate_valve_steps, write_csv, Record, SimError, SimulationRun, Summary};
 pub use stack::ControlStack;

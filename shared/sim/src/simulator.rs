@@ -93,6 +93,47 @@ pub fn build_plant(config: &Config, extra_effects: &[Effect]) -> Result<(Plant, 
 }
 
 /// Runs the closed loop for `duration` seconds and keeps every period.
+/// The crane paper's friction experiment, open loop: each command of
+/// `levels` held on the valve for `dwell_s`, the plant and sensors as
+/// configured. The records' reference and controller columns are zero.
+pub fn simulate_valve_steps(
+    config: &Config,
+    extra_effects: &[Effect],
+    levels: &[f64],
+    dwell_s: f64,
+) -> Result<Vec<Record>, SimError> {
+    if !(dwell_s.is_finite() && dwell_s > 0.0) {
+        return Err(SimError::Duration(dwell_s));
+    }
+    let (mut plant, mut sensor) = build_plant(config, extra_effects)?;
+    let period = config.timing.control_period();
+    let substeps = config.timing.substeps();
+    let per_level = (dwell_s / period).round() as usize;
+    let mut records = Vec::with_capacity(per_level * levels.len());
+    for &command in levels {
+        let command = command.clamp(-1.0, 1.0);
+        for _ in 0..per_level {
+            let state = plant.state();
+            let raw = sensor.read(&state);
+            records.push(Record {
+                t: records.len() as f64 * period,
+                u: command,
+                p_a: raw.p_a * 1e-5,
+                p_b: raw.p_b * 1e-5,
+                theta: raw.angle,
+                torque: plant.params().displacement * (raw.p_a - raw.p_b),
+                theta_true: state.angle,
+                omega_true: state.velocity,
+                theta_load: state.load_angle,
+                spool: state.spool,
+                ..Record::default()
+            });
+            plant.advance(command, substeps);
+        }
+    }
+    Ok(records)
+}
+
 pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Result<SimulationRun, SimError> {
     if !(duration.is_finite() && duration > 0.0) {
         return Err(SimError::Duration(duration));

@@ -3,6 +3,7 @@
 mod bench_latency;
 mod bench_record;
 mod control;
+mod ident;
 mod model;
 mod recording;
 mod report;
@@ -13,7 +14,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use hydractl_plant::{Effect, EffectKind};
-use hydractl_sim::{simulate, write_csv, Config, Structure};
+use hydractl_sim::{simulate, simulate_valve_steps, write_csv, Config, Structure};
 
 #[derive(Parser)]
 #[command(name = "hydractl", version, about = "Control stack for a hydraulic rotary actuator")]
@@ -36,7 +37,7 @@ enum Command {
     Linearize(LinearizeArgs),
     /// Identification from measured data.
     #[command(subcommand)]
-    Ident(IdentCommand),
+    Ident(ident::IdentCommand),
     /// The grey-box model against measurements: fit, compare, diagnose, add an effect, report.
     #[command(subcommand)]
     Model(model::ModelCommand),
@@ -75,8 +76,16 @@ struct SimArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Simulated seconds.
-    #[arg(long)]
-    duration: f64,
+    #[arg(long, required_unless_present = "valve_steps")]
+    duration: Option<f64>,
+    /// Instead of the closed loop, the crane paper's friction experiment,
+    /// open loop: the valve command stepped through ±STEP, ±2·STEP, … up
+    /// to ±1, each held for `--dwell` s (for `ident friction-map`).
+    #[arg(long, value_name = "STEP", conflicts_with_all = ["duration", "controller", "summary_json"])]
+    valve_steps: Option<f64>,
+    /// How long each valve step is held, s.
+    #[arg(long, default_value_t = 2.0, requires = "valve_steps")]
+    dwell: f64,
     /// Control structure [default: the config's].
     #[arg(long, value_enum)]
     controller: Option<ControllerStructure>,
@@ -114,44 +123,6 @@ enum LinearOutput {
     Velocity,
     PA,
     PB,
-}
-
-#[derive(Subcommand)]
-enum IdentCommand {
-    /// A continuous-time transfer function from one column to another.
-    Tf(IdentTfArgs),
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-enum IdentMethod {
-    /// Prediction error, ARMAX noise model, refined from output error (experimental).
-    Pem,
-    /// Output error.
-    Oe,
-}
-
-#[derive(clap::Args)]
-struct IdentTfArgs {
-    /// CSV with a header row, a `t` column and the two columns named below.
-    #[arg(long)]
-    data: PathBuf,
-    #[arg(long)]
-    input: String,
-    #[arg(long)]
-    output: String,
-    #[arg(long)]
-    poles: usize,
-    #[arg(long)]
-    zeros: usize,
-    #[arg(long, value_enum, default_value_t = IdentMethod::Oe)]
-    method: IdentMethod,
-    /// Share of the data, from its start, used to estimate; the rest validates.
-    #[arg(long, default_value_t = 0.7)]
-    estimation_fraction: f64,
-    /// Print {"num": [...], "den": [...], "fit_percent": X, ...}: continuous
-    /// time, descending powers of s, `den` monic.
-    #[arg(long)]
-    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -198,7 +169,7 @@ fn main() -> Result<()> {
         Command::Sim(args) => run_sim(args),
         Command::Effects => emit(&effects_table()),
         Command::Linearize(args) => linearize(args),
-        Command::Ident(IdentCommand::Tf(args)) => ident_tf(args),
+        Command::Ident(command) => ident::run(command),
         Command::Model(command) => model::run(command),
         Command::Swap(args) => control::swap(args),
         Command::Plant(args) => control::plant(args),
@@ -234,7 +205,31 @@ fn run_sim(args: SimArgs) -> Result<()> {
         .iter()
         .map(|spec| Effect::parse(spec).with_context(|| format!("--effect {spec}")))
         .collect::<Result<Vec<_>>>()?;
-    let run = simulate(&config, &effects, args.duration)?;
+    if let Some(step) = args.valve_steps {
+        if !(step.is_finite() && step > 0.0 && step <= 1.0) {
+            anyhow::bail!("--valve-steps {step}: the step must be in (0, 1]");
+        }
+        let count = (1.0 / step + 1e-9).floor() as usize;
+        let levels: Vec<f64> = (1..=count)
+            .flat_map(|k| [k as f64 * step, -(k as f64) * step])
+            .collect();
+        let records = simulate_valve_steps(&config, &effects, &levels, args.dwell)?;
+        if let Some(out) = &args.out {
+            write_csv(&records, out)?;
+        }
+        return emit(&format!(
+            "{} valve steps of {} s each, open loop, {} effect(s): {} rows{}\n",
+            levels.len(),
+            args.dwell,
+            effects.len(),
+            records.len(),
+            args.out
+                .as_ref()
+                .map_or(String::new(), |o| format!(" to {}", o.display()))
+        ));
+    }
+    let duration = args.duration.context("--duration is required")?;
+    let run = simulate(&config, &effects, duration)?;
     if let Some(out) = &args.out {
         write_csv(&run.records, out)?;
     }
@@ -309,62 +304,6 @@ fn linearize(args: LinearizeArgs) -> Result<()> {
     }
     writeln!(text, "  DC gain: {dc_gain:.6e}")?;
     emit(&text)
-}
-
-fn ident_tf(args: IdentTfArgs) -> Result<()> {
-    let data = recording::load_dataset(&args.data, &["t", &args.input, &args.output])?;
-    let ts = data.sample_time()?;
-    let method = match args.method {
-        IdentMethod::Pem => hydractl_ident::Method::Pem,
-        IdentMethod::Oe => hydractl_ident::Method::Oe,
-    };
-    let fit = hydractl_ident::identify_tf(
-        data.column(&args.input)?,
-        data.column(&args.output)?,
-        ts,
-        hydractl_ident::TfOptions {
-            poles: args.poles,
-            zeros: args.zeros,
-            method,
-            estimation_fraction: args.estimation_fraction,
-        },
-    )
-    .with_context(|| {
-        format!(
-            "identifying {} → {} in {}",
-            args.input,
-            args.output,
-            args.data.display()
-        )
-    })?;
-    let pairs: Vec<serde_json::Value> = fit
-        .tf
-        .resonances()
-        .iter()
-        .map(|(wn, zeta)| serde_json::json!({"natural_frequency_rad_s": wn, "damping": zeta}))
-        .collect();
-    if args.json {
-        let json = serde_json::json!({
-            "num": fit.tf.num(),
-            "den": fit.tf.den(),
-            "fit_percent": fit.fit_percent,
-            "estimation_fit_percent": fit.estimation_fit_percent,
-            "resonances": pairs,
-            "sample_time_s": ts,
-            "iterations": fit.iterations,
-        });
-        return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
-    }
-    let fmt = |p: &[f64]| p.iter().map(|c| format!("{c:.6e}")).collect::<Vec<_>>().join(", ");
-    emit(&format!(
-        "{} → {}: num [{}], den [{}], fit {:.1}% on validation ({:.1}% on estimation)\n",
-        args.input,
-        args.output,
-        fmt(fit.tf.num()),
-        fmt(fit.tf.den()),
-        fit.fit_percent,
-        fit.estimation_fit_percent
-    ))
 }
 
 fn effects_table() -> String {

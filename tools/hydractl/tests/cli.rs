@@ -347,3 +347,132 @@ fn model_input_defects_name_the_file_line_and_column() {
     );
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// `config/sim.toml` with position-only P control at gain `kp`.
+fn p_control_config(dir: &std::path::Path, kp: f64) -> PathBuf {
+    let default =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/sim.toml")).expect("config");
+    let mut text = String::new();
+    let mut in_position_pid = false;
+    for line in default.lines() {
+        if line.starts_with('[') {
+            in_position_pid = line == "[control.position_only.pid]";
+        }
+        let line = if line.starts_with("variant = \"mfc\"")
+            && text.contains("[control.position_only]\n")
+            && !text.contains("[control.cascade]")
+        {
+            "variant = \"pid\"".to_owned()
+        } else if in_position_pid && line.starts_with("kp =") {
+            format!("kp = {kp}")
+        } else if in_position_pid && (line.starts_with("ki =") || line.starts_with("kd =")) {
+            format!("{} = 0.0", &line[..2])
+        } else {
+            line.to_owned()
+        };
+        text += &line;
+        text += "\n";
+    }
+    let path = dir.join(format!("p{kp}.toml"));
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+#[test]
+fn ident_mech_friction_map_spectrum_and_pid_iae_on_the_simulated_rotator() {
+    let dir = scratch("ident_methods");
+    // Closed-loop mechanics: P control at two gains, then Ĵ and b̂. The
+    // runs agree with each other and with the valve-step map's slope.
+    let mut runs = Vec::new();
+    for kp in [0.2, 1.0] {
+        let csv = dir.join(format!("p{kp}.csv"));
+        run_ok(
+            hydractl()
+                .args(["sim", "--duration", "30", "--controller", "position", "--config"])
+                .arg(p_control_config(&dir, kp))
+                .arg("--out")
+                .arg(&csv),
+        );
+        runs.push((kp, csv));
+    }
+    let mut mech = hydractl();
+    mech.args(["ident", "mech", "--json"]);
+    for (kp, csv) in &runs {
+        mech.arg("--data").arg(csv).arg("--kp").arg(kp.to_string());
+    }
+    let mech: serde_json::Value = serde_json::from_str(&run_ok(&mut mech)).expect("json");
+    let per_run: Vec<(f64, f64)> = mech["runs"]
+        .as_array()
+        .expect("runs")
+        .iter()
+        .map(|r| (r["j_hat"].as_f64().expect("j"), r["b_hat"].as_f64().expect("b")))
+        .collect();
+    assert_eq!(per_run.len(), 2);
+    let (j0, b0) = per_run[0];
+    let (j1, b1) = per_run[1];
+    assert!((j0 - j1).abs() < 0.15 * j0, "{mech}");
+    assert!((b0 - b1).abs() < 0.05 * b0, "{mech}");
+
+    let steps = dir.join("steps.csv");
+    run_ok(
+        hydractl()
+            .args(["sim", "--valve-steps", "0.1", "--dwell", "2", "--out"])
+            .arg(&steps),
+    );
+    let map: serde_json::Value = serde_json::from_str(&run_ok(
+        hydractl()
+            .args(["ident", "friction-map", "--json", "--data"])
+            .arg(&steps),
+    ))
+    .expect("json");
+    assert_eq!(map["points"].as_array().map(Vec::len), Some(20));
+    let slope = map["positive"]["per_rad_s"].as_f64().expect("slope");
+    let b_hat = mech["b_hat"].as_f64().expect("b");
+    assert!((slope - b_hat).abs() < 0.05 * b_hat, "map slope {slope}, b̂ {b_hat}");
+    assert!(
+        map["positive"]["breakaway"].as_f64().is_some_and(|c| c.abs() < 0.01),
+        "{map}"
+    );
+
+    // The spectrum of the cascade's closed-loop data shows a resonance; the
+    // IAE tuning beats its own start.
+    let cascade = dir.join("cascade.csv");
+    run_ok(hydractl().args(["sim", "--duration", "30", "--out"]).arg(&cascade));
+    let spectrum: serde_json::Value = serde_json::from_str(&run_ok(
+        hydractl()
+            .args([
+                "ident", "spectrum", "--json", "--input", "u", "--output", "torque", "--data",
+            ])
+            .arg(&cascade),
+    ))
+    .expect("json");
+    assert!(
+        spectrum["resonance"]["frequency_rad_s"].as_f64().is_some(),
+        "{}",
+        spectrum["resonance"]
+    );
+    let tuned: serde_json::Value = serde_json::from_str(&run_ok(hydractl().args([
+        "ident",
+        "pid-iae",
+        "--json",
+        "--num",
+        "20.79,-1696,8.005e4,1.139e5",
+        "--den",
+        "1,35.68,1428,1.972e4,2.783e4",
+        "--start",
+        "0.2,5.6,0.02",
+    ])))
+    .expect("json");
+    let paper_iae = tuned["starts"][0]["iae"].as_f64().expect("iae");
+    assert!(tuned["iae"].as_f64().is_some_and(|v| v < paper_iae), "{tuned}");
+
+    // Mismatched arguments are named.
+    let out = hydractl()
+        .args(["ident", "mech", "--kp", "0.2", "--kp", "1.0", "--data"])
+        .arg(&runs[0].1)
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("one gain per run"));
+    std::fs::remove_dir_all(dir).ok();
+}
