@@ -122,3 +122,13 @@ fn gravity_load_smaller_than_default() {
 fn load_flexibility() {
     hidden("load_flexibility", 3);
 }
+
+#[test]
+fn quantization_at_the_default_ten_degrees() {
+    hidden("quantization", 4);
+}
+
+#[test]
+fn quantization_finer_than_default() {
+    hidden("quantization:step=0.12", 5);
+}

@@ -338,6 +338,16 @@ pub fn predict_mechanical(
             initial_angle += d_angle;
             initial_velocity += d_velocity;
         }
+        if let Some(q) = effects.quantization {
+            refine_on_staircase(
+                plant,
+                signals,
+                q.step,
+                effects,
+                &signals.theta[segment.clone()],
+                &mut best,
+            );
+        }
         // A diverged simulation leaves NaN, which the fit refuses.
         best.resize(segment.len(), f64::NAN);
         for (i, k) in segment.clone().enumerate() {
@@ -383,6 +393,73 @@ fn best_quantized_offset(effects: &Effects, step: f64, measured: &[f64], shaft: 
         }
     }
     best.1
+}
+
+/// With a coarse encoder a segment's staircase holds only a few steps, and
+/// least squares on it leaves the initial velocity uncertain as well as the
+/// angle: over a 0.5 s segment a 10° encoder cannot tell velocities apart
+/// by less than a step per segment. This searches the initial angle (within
+/// half a step) and velocity (within a step per segment) together, on a
+/// coarse grid and then a finer one around its best, for the shift of the
+/// segment that reproduces the measured staircase best; the velocity
+/// shifts the path by the rigid body's sensitivity.
+fn refine_on_staircase(
+    plant: &PlantParams,
+    signals: &Signals,
+    step: f64,
+    effects: &Effects,
+    measured: &[f64],
+    path: &mut [f64],
+) {
+    const GRID: i32 = 6;
+    let n = path.len().min(measured.len());
+    // A staircase that steps at least every tenth sample pins the path
+    // down already (a fine encoder on a moving load): no search needed.
+    let steps_taken = measured[..n].windows(2).filter(|w| w[0] != w[1]).count();
+    if n < 2 || steps_taken * 10 >= n {
+        return;
+    }
+    let decay = plant.viscous_friction / plant.inertia;
+    let sensitivity: Vec<f64> = (0..n)
+        .map(|i| {
+            let t = i as f64 * signals.dt;
+            if decay * t > 1e-9 {
+                (1.0 - (-decay * t).exp()) / decay
+            } else {
+                t
+            }
+        })
+        .collect();
+    let span_t = sensitivity[n - 1].max(signals.dt);
+    let error = |d_angle: f64, d_velocity: f64| -> f64 {
+        (0..n)
+            .map(|i| {
+                let shifted = path[i] + d_angle + d_velocity * sensitivity[i];
+                (measured[i] - encoder_reading(effects, shifted)).powi(2)
+            })
+            .sum()
+    };
+    let mut best = (error(0.0, 0.0), 0.0, 0.0);
+    let (mut angle_span, mut velocity_span) = (0.5 * step, 2.0 * step / span_t);
+    let (mut centre_angle, mut centre_velocity) = (0.0, 0.0);
+    for _ in 0..3 {
+        for a in -GRID..=GRID {
+            for v in -GRID..=GRID {
+                let d_angle = centre_angle + angle_span * f64::from(a) / f64::from(GRID);
+                let d_velocity = centre_velocity + velocity_span * f64::from(v) / f64::from(GRID);
+                let e = error(d_angle, d_velocity);
+                if e < best.0 {
+                    best = (e, d_angle, d_velocity);
+                }
+            }
+        }
+        (centre_angle, centre_velocity) = (best.1, best.2);
+        angle_span /= f64::from(GRID);
+        velocity_span /= f64::from(GRID);
+    }
+    for (p, g) in path.iter_mut().zip(&sensitivity) {
+        *p += best.1 + best.2 * g;
+    }
 }
 
 /// The least-squares change of a segment's initial angle and velocity that
