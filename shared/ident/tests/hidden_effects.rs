@@ -132,3 +132,13 @@ fn quantization_at_the_default_ten_degrees() {
 fn quantization_finer_than_default() {
     hidden("quantization:step=0.12", 5);
 }
+
+#[test]
+fn backlash_at_the_default_width() {
+    hidden("backlash", 3);
+}
+
+#[test]
+fn backlash_narrower_than_default() {
+    hidden("backlash:width=0.012", 4);
+}

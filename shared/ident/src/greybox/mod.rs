@@ -317,8 +317,8 @@ pub fn predict_mechanical(
                 effects,
                 signals,
                 segment.clone(),
-                initial_angle,
-                initial_velocity,
+                (initial_angle, initial_velocity),
+                None,
                 &mut shaft,
             );
             let offset = match effects.quantization {
@@ -337,6 +337,32 @@ pub fn predict_mechanical(
             let (d_angle, d_velocity) = initial_state_correction(plant, signals, segment.clone(), &shaft);
             initial_angle += d_angle;
             initial_velocity += d_velocity;
+        }
+        // Where the encoder sits within the play at the segment's start is
+        // not known from the velocity alone (a load at rest may sit
+        // anywhere in it): try both ends of the play and its middle. (Five
+        // or seven positions fitted no better on 60 s runs at seeds 1–2,
+        // and cost diagnose most of a second.)
+        if let Some(backlash) = effects.backlash {
+            const POSITIONS: usize = 3;
+            for i in 0..POSITIONS {
+                let play = backlash.width * (i as f64 / (POSITIONS - 1) as f64 - 0.5);
+                simulate_segment(
+                    plant,
+                    effects,
+                    signals,
+                    segment.clone(),
+                    (initial_angle, initial_velocity),
+                    Some(play),
+                    &mut shaft,
+                );
+                let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, 0.0);
+                if error < best_error {
+                    best_error = error;
+                    best.clear();
+                    best.extend_from_slice(&shaft);
+                }
+            }
         }
         if let Some(q) = effects.quantization {
             refine_on_staircase(
@@ -494,22 +520,26 @@ fn initial_state_correction(
     ((s22 * r1 - s12 * r2) / det, (s11 * r2 - s12 * r1) / det)
 }
 
-/// One segment of the mechanical part from a given initial state; writes
-/// the encoder shaft's angle (before quantization) into `shaft`.
+/// One segment of the mechanical part from a given initial state (the
+/// encoder's angle and the velocity); writes the encoder shaft's angle
+/// (before quantization) into `shaft`. With backlash, `play` is where the
+/// actuator starts relative to the encoder within the play; `None` takes
+/// half the play behind the motion, or the middle at rest.
 fn simulate_segment(
     plant: &PlantParams,
     effects: &Effects,
     signals: &Signals,
     segment: Range<usize>,
-    initial_angle: f64,
-    initial_velocity: f64,
+    (initial_angle, initial_velocity): (f64, f64),
+    play: Option<f64>,
     shaft: &mut Vec<f64>,
 ) {
     shaft.clear();
     let h = signals.dt;
     // The encoder lags the actuator by half the play while moving.
-    let lag = match effects.backlash {
-        Some(b) if initial_velocity != 0.0 => 0.5 * b.width * initial_velocity.signum(),
+    let lag = match (effects.backlash, play) {
+        (Some(_), Some(play)) => play,
+        (Some(b), None) if initial_velocity != 0.0 => 0.5 * b.width * initial_velocity.signum(),
         _ => 0.0,
     };
     let angle = initial_angle + lag;
