@@ -114,6 +114,19 @@ pub fn identify_tf(u: &[f64], y: &[f64], ts: f64, options: TfOptions) -> Result<
     // model) and adds its noise model.
     let (ue, ye) = (&u[..split], &y[..split]);
     let (mut tf, mut iterations) = refine(&initial, ue, ye, ts, Method::Oe)?;
+    // A pole spent on the sampling: a second start, and the better stays.
+    if let Some(second) = without_fast_poles(&tf, ts) {
+        let (other, more) = refine(&second, ue, ye, ts, Method::Oe)?;
+        iterations += more;
+        let cost_of = |m: &TransferFunction| {
+            simulate(m, ue, ts).map_or(f64::INFINITY, |yhat| {
+                ye.iter().zip(&yhat).map(|(a, b)| (a - b).powi(2)).sum::<f64>()
+            })
+        };
+        if cost_of(&other) < cost_of(&tf) {
+            tf = other;
+        }
+    }
     if method == Method::Pem {
         let (pem, more) = refine(&tf, ue, ye, ts, Method::Pem)?;
         tf = pem;
@@ -224,15 +237,24 @@ fn arx_to_continuous(u: &[f64], y: &[f64], ts: f64, n: usize, zeros: usize) -> R
         .collect();
     let den_monic = hydractl_lti::poly_from_roots(&mirrored);
     let full = TransferFunction::new(num, den)?;
-    // Keep the denominator; fit a numerator of degree `zeros` to the
-    // bilinear model's response below a third of the Nyquist frequency.
+    with_denominator(&full, den_monic, zeros, ts)
+}
+
+/// `den` with a numerator of degree `zeros` fitted to `model`'s frequency
+/// response below a third of the Nyquist frequency of `ts`.
+fn with_denominator(
+    model: &TransferFunction,
+    den: Vec<f64>,
+    zeros: usize,
+    ts: f64,
+) -> Result<TransferFunction, IdentError> {
     let nyquist = std::f64::consts::PI / ts;
     let grid: Vec<f64> = (1..=200).map(|i| nyquist / 3.0 * i as f64 / 200.0).collect();
     let mut m = DMatrix::zeros(2 * grid.len(), zeros + 1);
     let mut rhs = DVector::zeros(2 * grid.len());
     for (g, &w) in grid.iter().enumerate() {
         let s = Complex::new(0.0, w);
-        let target = full.eval(s) * hydractl_lti::poly_eval(&den_monic, s);
+        let target = model.eval(s) * hydractl_lti::poly_eval(&den, s);
         for j in 0..=zeros {
             let power = s.powu((zeros - j) as u32);
             m[(2 * g, j)] = power.re;
@@ -245,7 +267,33 @@ fn arx_to_continuous(u: &[f64], y: &[f64], ts: f64, n: usize, zeros: usize) -> R
         .svd(true, true)
         .solve(&rhs, 1e-14)
         .map_err(|e| IdentError::Failed(format!("numerator fit: {e}")))?;
-    Ok(TransferFunction::new(num.iter().copied().collect(), den_monic)?)
+    Ok(TransferFunction::new(num.iter().copied().collect(), den)?)
+}
+
+/// A refined model with a real pole pushed against the Nyquist frequency
+/// has spent a pole on the sampling rather than the plant: a start with
+/// that pole brought down among the slow ones instead, for a second try.
+/// `None` when no pole is that fast.
+fn without_fast_poles(model: &TransferFunction, ts: f64) -> Option<TransferFunction> {
+    let fast = 0.25 * std::f64::consts::PI / ts;
+    let poles = model.poles();
+    if poles.iter().all(|p| p.norm() < fast) {
+        return None;
+    }
+    let slowest = poles
+        .iter()
+        .map(|p| p.norm())
+        .filter(|&w| w < fast)
+        .fold(f64::INFINITY, f64::min);
+    let slow = if slowest.is_finite() { 0.5 * slowest } else { 1.0 };
+    let moved: Vec<Complex<f64>> = poles
+        .iter()
+        .map(|p| if p.norm() < fast { *p } else { Complex::new(-slow, 0.0) })
+        .collect();
+    let den = hydractl_lti::poly_from_roots(&moved);
+    // The numerator is fitted to the model below the data's own limit, not
+    // the decimated start's: the model is already at the data's rate.
+    with_denominator(model, den, model.num().len() - 1, ts).ok()
 }
 
 fn arx_is_stable(theta: &DVector<f64>, n: usize) -> bool {

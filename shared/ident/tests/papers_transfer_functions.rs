@@ -48,13 +48,14 @@ fn identify_over_seeds(truth: &TransferFunction, method: Method, seeds: std::ops
         .collect()
 }
 
-/// What output error achieves today, over every seed tried: the pair to 1%
-/// and a validation fit of at least 90%. The issue asks 95%; some seeds
-/// land at 91–93% (see the closing note).
+/// The issue's bar, over every seed: a validation fit of at least 95% and
+/// the complex pair's natural frequency within 5% (output error finds it
+/// within 0.01%).
 fn check(name: &str, truth: TransferFunction) {
     let true_pair = truth.resonances()[0].0;
     for (seed, (fit, pair)) in (1..6).zip(identify_over_seeds(&truth, Method::Oe, 1..6)) {
-        assert!(fit >= 90.0, "{name} seed {seed}: fit {fit:.1}%");
+        eprintln!("{name} seed {seed}: fit {fit:.2}%, pair {pair:.3} against {true_pair:.3} rad/s");
+        assert!(fit >= 95.0, "{name} seed {seed}: fit {fit:.1}%");
         assert!(
             (pair - true_pair).abs() <= 0.01 * true_pair,
             "{name} seed {seed}: pair {pair} vs {true_pair}"
