@@ -42,7 +42,7 @@ fn main() -> Result<()> {
                 let decision = match wake {
                     Wake::Input(COMMAND) => torque.latest()?.map(|t| {
                         last_input = Instant::now();
-                        let (command, faults) = stage.on_command(t.sensor_seq, t.command);
+                        let (command, faults) = stage.on_command(t.sensor_seq, t.command, t.variant);
                         (t.sensor_seq, t.sensor_time_ns, command, t.command, faults)
                     }),
                     Wake::Input(SENSOR) => neutral

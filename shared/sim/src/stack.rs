@@ -395,6 +395,7 @@ pub struct ValveStage {
     filled: usize,
     limit_cycle: LimitCycleDetector,
     in_limit_cycle: bool,
+    command_source: Option<u32>,
 }
 
 /// The longest guard the valve supports, in periods.
@@ -435,6 +436,7 @@ impl ValveStage {
             })
             .map_err(in_section("control.valve_guard"))?,
             in_limit_cycle: false,
+            command_source: None,
             readings_since_command: 0,
             newest_command_seq: None,
             recent: [(0, false); RECENT_READINGS],
@@ -448,9 +450,15 @@ impl ValveStage {
         self.shaper.update(command)
     }
 
-    /// A command derived from sensor reading `seq`. Returns the command to
-    /// drive and the faults.
-    pub fn on_command(&mut self, seq: u64, requested: f64) -> (f64, ValveFaults) {
+    /// A command derived from sensor reading `seq`, from the controller
+    /// variant `source` ([`hydractl_samples`]' `code`, any stable tag will
+    /// do). Returns the command to drive and the faults. A new source (a hot
+    /// swap hands over without a gap in the commands) is judged afresh.
+    pub fn on_command(&mut self, seq: u64, requested: f64, source: u32) -> (f64, ValveFaults) {
+        if self.command_source.is_some_and(|s| s != source) {
+            self.forget_limit_cycle();
+        }
+        self.command_source = Some(source);
         let reading = self.reading(seq);
         let sound = requested.is_finite() && requested.abs() <= 1.0 + 1e-9;
         if sound {
@@ -554,7 +562,7 @@ mod tests {
     fn valve_passes_sound_commands_through_the_shaper() {
         let mut v = valve();
         assert!(v.on_sensor(10, true).is_none());
-        let (command, faults) = v.on_command(10, 0.05);
+        let (command, faults) = v.on_command(10, 0.05, 0);
         assert!(!faults.any());
         assert!((command - 0.05).abs() < 1e-12);
     }
@@ -563,18 +571,18 @@ mod tests {
     fn valve_goes_neutral_on_garbage_at_once() {
         let mut v = valve();
         v.on_sensor(1, true);
-        v.on_command(1, 0.05);
+        v.on_command(1, 0.05, 0);
         v.on_sensor(2, true);
-        let (command, faults) = v.on_command(2, f64::NAN);
+        let (command, faults) = v.on_command(2, f64::NAN, 0);
         assert_eq!((command, faults.not_finite), (0.0, true));
         v.on_sensor(3, true);
-        let (command, faults) = v.on_command(3, 1.5);
+        let (command, faults) = v.on_command(3, 1.5, 0);
         assert_eq!((command, faults.out_of_range), (0.0, true));
         v.on_sensor(4, false);
-        let (command, faults) = v.on_command(4, 0.05);
+        let (command, faults) = v.on_command(4, 0.05, 0);
         assert_eq!((command, faults.invalid_sensor), (0.0, true));
         // A command from a reading the valve never saw is not trusted either.
-        let (command, faults) = v.on_command(99, 0.05);
+        let (command, faults) = v.on_command(99, 0.05, 0);
         assert_eq!((command, faults.invalid_sensor), (0.0, true));
     }
 
@@ -586,7 +594,7 @@ mod tests {
         let mut first_neutral = None;
         for seq in 0..2000 {
             v.on_sensor(seq, true);
-            let (command, faults) = v.on_command(seq, bang_bang(seq));
+            let (command, faults) = v.on_command(seq, bang_bang(seq), 0);
             if faults.limit_cycle && first_neutral.is_none() {
                 first_neutral = Some(seq);
             }
@@ -601,8 +609,24 @@ mod tests {
             v.on_sensor(seq, true);
         }
         v.on_sensor(2004, true);
-        let (_, faults) = v.on_command(2004, 0.9);
+        let (_, faults) = v.on_command(2004, 0.9, 0);
         assert!(!faults.any(), "{faults:?}");
+    }
+
+    #[test]
+    fn a_hot_swap_away_from_a_limit_cycling_controller_is_judged_afresh() {
+        let mut v = valve();
+        let bang_bang = |seq: u64| if (seq / 100).is_multiple_of(2) { 0.9 } else { -0.9 };
+        for seq in 0..1400 {
+            v.on_sensor(seq, true);
+            v.on_command(seq, bang_bang(seq), 0);
+        }
+        // The handover leaves no gap in the commands: the new variant's
+        // first command is driven.
+        v.on_sensor(1400, true);
+        let (command, faults) = v.on_command(1400, 0.3, 2);
+        assert!(!faults.any(), "{faults:?}");
+        assert!(command > 0.0);
     }
 
     #[test]
@@ -611,10 +635,10 @@ mod tests {
         for seq in 5..=8 {
             v.on_sensor(seq, true);
         }
-        let (_, faults) = v.on_command(5, 0.05);
+        let (_, faults) = v.on_command(5, 0.05, 0);
         assert!(!faults.stale, "readings 6, 7, 8 came after it");
         v.on_sensor(9, true);
-        let (command, faults) = v.on_command(5, 0.05);
+        let (command, faults) = v.on_command(5, 0.05, 0);
         assert_eq!((command, faults.stale), (0.0, true));
     }
 
@@ -622,7 +646,7 @@ mod tests {
     fn valve_goes_neutral_when_commands_stop_or_everything_falls_silent() {
         let mut v = valve();
         v.on_sensor(10, true);
-        v.on_command(10, 0.05);
+        v.on_command(10, 0.05, 0);
         assert!(v.on_sensor(11, true).is_none());
         assert!(v.on_sensor(12, true).is_none());
         assert!(v.on_sensor(13, true).is_none());
@@ -639,7 +663,7 @@ mod tests {
         let mut v = valve();
         v.on_sensor(10, true);
         v.on_sensor(11, true);
-        v.on_command(10, 0.05);
+        v.on_command(10, 0.05, 0);
         assert!(v.on_sensor(12, true).is_none());
         assert!(v.on_sensor(13, true).is_none());
         assert!(v.on_sensor(14, true).is_some(), "four readings after reading 10");
@@ -649,9 +673,9 @@ mod tests {
     fn a_stall_of_the_whole_machine_is_not_a_stale_command() {
         let mut v = valve();
         v.on_sensor(10, true);
-        v.on_command(10, 0.05);
+        v.on_command(10, 0.05, 0);
         assert!(v.on_sensor(17, true).is_none());
-        let (_, faults) = v.on_command(17, 0.05);
+        let (_, faults) = v.on_command(17, 0.05, 0);
         assert!(!faults.any());
     }
 
@@ -660,10 +684,10 @@ mod tests {
         let mut v = valve();
         for seq in 1000..1010 {
             v.on_sensor(seq, true);
-            v.on_command(seq, 0.05);
+            v.on_command(seq, 0.05, 0);
         }
         v.on_sensor(0, true);
-        let (_, faults) = v.on_command(0, 0.05);
+        let (_, faults) = v.on_command(0, 0.05, 0);
         assert!(!faults.any());
     }
 }
