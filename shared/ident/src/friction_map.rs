@@ -35,7 +35,8 @@ pub struct DirectionFit {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct FrictionMap {
     pub points: Vec<MapPoint>,
-    /// The steady points, sorted by velocity: the map for the config.
+    /// The steady moving points, velocity strictly increasing: the map for
+    /// the config.
     pub velocity: Vec<f64>,
     pub output: Vec<f64>,
     pub positive: Option<DirectionFit>,
@@ -110,9 +111,21 @@ pub fn friction_map(t: &[f64], u: &[f64], theta: &[f64], min_step_s: f64) -> Res
             points: moving.len(),
         })
     };
+    // The map holds the moving points only: the commands within the dead
+    // band all hold the load still, and a map must rise strictly with the
+    // velocity (the friction compensation refuses repeats).
+    let mut velocity: Vec<f64> = Vec::with_capacity(steady.len());
+    let mut output: Vec<f64> = Vec::with_capacity(steady.len());
+    for p in steady.iter().filter(|p| p.velocity_rad_s.abs() > STANDSTILL) {
+        if velocity.last().is_some_and(|&v| p.velocity_rad_s <= v) {
+            continue;
+        }
+        velocity.push(p.velocity_rad_s);
+        output.push(p.command);
+    }
     Ok(FrictionMap {
-        velocity: steady.iter().map(|p| p.velocity_rad_s).collect(),
-        output: steady.iter().map(|p| p.command).collect(),
+        velocity,
+        output,
         positive: direction(true),
         negative: direction(false),
         points,
@@ -183,13 +196,19 @@ mod tests {
         assert!((positive.breakaway - 0.15).abs() < 0.01, "{positive:?}");
         assert!((negative.breakaway + 0.15).abs() < 0.01, "{negative:?}");
         assert!((positive.per_rad_s - 0.5).abs() < 0.02, "{positive:?}");
-        // The map is sorted by velocity, and the commands that hold the
-        // load still are in it at zero velocity.
-        assert!(map.velocity.windows(2).all(|w| w[0] <= w[1]));
+        // The commands that hold the load still are points, not map entries:
+        // the map rises strictly, as the friction compensation requires.
         assert!(map
             .points
             .iter()
             .any(|p| p.command == 0.1 && p.velocity_rad_s.abs() < 1e-6));
+        assert_eq!(map.velocity.len(), 18);
+        assert!(map.velocity.windows(2).all(|w| w[0] < w[1]));
+        let compensation = hydractl_control::StaticMap {
+            velocity: map.velocity.clone(),
+            output: map.output.clone(),
+        };
+        compensation.validate("map").expect("a valid map");
     }
 
     #[test]

@@ -75,11 +75,15 @@ pub fn tune_pid_iae(model: &TransferFunction, starts: &[[f64; 3]], tuning: IaeTu
                 "starting gains must be positive (the search runs over their logarithms; for a term to start near zero give a small value such as 1e-9), got {start:?}"
             )));
         }
+        // Twelve decades either way of each start: the gains' scale is the
+        // model's (N·m or bar per unit command), not ours.
         let initial: Vec<f64> = start.iter().map(|g| g.ln()).collect();
+        let lower: Vec<f64> = initial.iter().map(|g| g - 12.0 * std::f64::consts::LN_10).collect();
+        let upper: Vec<f64> = initial.iter().map(|g| g + 12.0 * std::f64::consts::LN_10).collect();
         let Some(result) = minimize(
             &initial,
-            &[-12.0; 3],
-            &[8.0; 3],
+            &lower,
+            &upper,
             residuals,
             LmOptions {
                 max_iterations: 60,
@@ -106,8 +110,12 @@ pub fn tune_pid_iae(model: &TransferFunction, starts: &[[f64; 3]], tuning: IaeTu
 struct Loop {
     plant: DiscreteSiso,
     tuning: IaeTuning,
+    samples: usize,
     errors: Vec<f64>,
 }
+
+/// The longest step response simulated, in controller periods.
+const MAX_SAMPLES: f64 = 1e7;
 
 impl Loop {
     fn new(model: &TransferFunction, tuning: IaeTuning) -> Result<Self, IdentError> {
@@ -117,10 +125,17 @@ impl Loop {
         {
             return Err(IdentError::Failed(format!("invalid tuning settings {tuning:?}")));
         }
-        let samples = (tuning.horizon_s / tuning.ts).round() as usize;
+        let samples = (tuning.horizon_s / tuning.ts).round();
+        if !(10.0..=MAX_SAMPLES).contains(&samples) {
+            return Err(IdentError::Failed(format!(
+                "the horizon holds {samples} controller periods; it must hold from 10 to {MAX_SAMPLES}"
+            )));
+        }
+        let samples = samples as usize;
         Ok(Self {
             plant: DiscreteSiso::from_transfer_function_zoh(model, tuning.ts)?,
             tuning,
+            samples,
             errors: Vec::with_capacity(samples),
         })
     }
@@ -143,7 +158,7 @@ fn step_errors(simulation: &mut Loop, [kp, ki, kd]: [f64; 3]) -> Option<Vec<f64>
     .ok()?;
     simulation.plant.reset();
     simulation.errors.clear();
-    let samples = simulation.errors.capacity();
+    let samples = simulation.samples;
     let mut output = 0.0;
     for _ in 0..samples {
         let error = t.step - output;

@@ -51,11 +51,16 @@ pub fn welch(u: &[f64], y: &[f64], ts: f64, segment: usize) -> Result<Spectrum, 
     if !(ts.is_finite() && ts > 0.0) {
         return Err(IdentError::SampleTime(ts));
     }
-    if segment < 16 || u.len() < segment {
+    // Two segments at least (50% overlap): with one, the coherence is 1
+    // everywhere and says nothing.
+    if segment < 16 || u.len() < segment + segment / 2 {
         return Err(IdentError::TooShort {
-            needed: segment.max(16),
+            needed: segment.max(16) + segment.max(16) / 2,
             have: u.len(),
         });
+    }
+    if let Some(k) = u.iter().zip(y).position(|(a, b)| !(a.is_finite() && b.is_finite())) {
+        return Err(IdentError::Failed(format!("sample {k} is not finite")));
     }
     if u.iter().all(|&v| v == u[0]) {
         return Err(IdentError::NoExcitation);
@@ -105,6 +110,9 @@ pub fn welch(u: &[f64], y: &[f64], ts: f64, segment: usize) -> Result<Spectrum, 
         segments,
     };
     for k in 1..=bins {
+        // One-sided: every bin but DC and, for an even length, Nyquist
+        // stands for its mirror image too.
+        let sides = if 2 * k == segment { 1.0 } else { 2.0 };
         let h = if suu[k] > 0.0 {
             syu[k] / suu[k]
         } else {
@@ -112,8 +120,8 @@ pub fn welch(u: &[f64], y: &[f64], ts: f64, segment: usize) -> Result<Spectrum, 
         };
         let coherence = syu[k].norm_sqr() / (suu[k] * syy[k]);
         spectrum.frequency_rad_s.push(k as f64 * dw);
-        spectrum.input_psd.push(2.0 * suu[k] * scale);
-        spectrum.output_psd.push(2.0 * syy[k] * scale);
+        spectrum.input_psd.push(sides * suu[k] * scale);
+        spectrum.output_psd.push(sides * syy[k] * scale);
         spectrum.gain.push(h.norm());
         spectrum.phase_deg.push(h.arg().to_degrees());
         spectrum
@@ -129,8 +137,10 @@ fn mean(x: &[f64]) -> f64 {
 
 impl Spectrum {
     /// The most prominent peak of the gain between `low` and `high` rad/s,
-    /// among bins with coherence of at least `min_coherence`, after a
-    /// 5-bin moving average so that one noisy bin is not a peak.
+    /// after a 5-bin moving average so that one noisy bin is not a peak,
+    /// where one of those five bins has a coherence of at least
+    /// `min_coherence`. Its prominence is
+    /// its gain over the lowest gain in the band below it.
     pub fn resonance(&self, low: f64, high: f64, min_coherence: f64) -> Option<Resonance> {
         let n = self.gain.len();
         let smooth: Vec<f64> = (0..n)
@@ -139,30 +149,29 @@ impl Spectrum {
                 mean(&self.gain[a..b])
             })
             .collect();
-        let in_band: Vec<usize> = (0..n)
-            .filter(|&k| {
-                let w = self.frequency_rad_s[k];
-                w >= low && w <= high && self.coherence[k] >= min_coherence && smooth[k].is_finite()
-            })
-            .collect();
         let mut best: Option<Resonance> = None;
         let mut lowest_so_far = f64::INFINITY;
-        for (i, &k) in in_band.iter().enumerate() {
+        for k in 1..n.saturating_sub(1) {
+            let w = self.frequency_rad_s[k];
+            if w < low || w > high || !smooth[k].is_finite() {
+                continue;
+            }
             lowest_so_far = lowest_so_far.min(smooth[k]);
-            let is_peak = i > 0
-                && i + 1 < in_band.len()
-                && smooth[k] >= smooth[in_band[i - 1]]
-                && smooth[k] > smooth[in_band[i + 1]];
-            if !is_peak {
+            let is_peak = smooth[k] >= smooth[k - 1] && smooth[k] > smooth[k + 1];
+            // Judged over the same five bins as the smoothed gain.
+            let coherence = self.coherence[k.saturating_sub(2)..(k + 3).min(n)]
+                .iter()
+                .fold(0.0_f64, |m, &c| m.max(c));
+            if !is_peak || coherence < min_coherence {
                 continue;
             }
             let prominence = smooth[k] / lowest_so_far;
             if best.is_none_or(|b| prominence > b.prominence) {
                 best = Some(Resonance {
-                    frequency_rad_s: self.frequency_rad_s[k],
+                    frequency_rad_s: w,
                     gain: smooth[k],
                     prominence,
-                    coherence: self.coherence[k],
+                    coherence,
                 });
             }
         }

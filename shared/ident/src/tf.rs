@@ -115,8 +115,9 @@ pub fn identify_tf(u: &[f64], y: &[f64], ts: f64, options: TfOptions) -> Result<
     let (ue, ye) = (&u[..split], &y[..split]);
     let (mut tf, mut iterations) = refine(&initial, ue, ye, ts, Method::Oe)?;
     // A pole spent on the sampling: a second start, and the better stays.
-    if let Some(second) = without_fast_poles(&tf, ts) {
-        let (other, more) = refine(&second, ue, ye, ts, Method::Oe)?;
+    if let Some((other, more)) =
+        without_fast_poles(&tf, ts).and_then(|second| refine(&second, ue, ye, ts, Method::Oe).ok())
+    {
         iterations += more;
         let cost_of = |m: &TransferFunction| {
             simulate(m, ue, ts).map_or(f64::INFINITY, |yhat| {

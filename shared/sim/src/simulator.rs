@@ -92,7 +92,8 @@ pub fn build_plant(config: &Config, extra_effects: &[Effect]) -> Result<(Plant, 
     Ok((plant, sensor))
 }
 
-/// Runs the closed loop for `duration` seconds and keeps every period.
+const MAX_OPEN_LOOP_ROWS: usize = 86_400_000;
+
 /// The crane paper's friction experiment, open loop: each command of
 /// `levels` held on the valve for `dwell_s`, the plant and sensors as
 /// configured. The records' reference and controller columns are zero.
@@ -109,6 +110,10 @@ pub fn simulate_valve_steps(
     let period = config.timing.control_period();
     let substeps = config.timing.substeps();
     let per_level = (dwell_s / period).round() as usize;
+    // A day of 1 kHz rows at most: beyond that the request is a typo.
+    if per_level.saturating_mul(levels.len()) > MAX_OPEN_LOOP_ROWS {
+        return Err(SimError::Duration(dwell_s * levels.len() as f64));
+    }
     let mut records = Vec::with_capacity(per_level * levels.len());
     for &command in levels {
         let command = command.clamp(-1.0, 1.0);
@@ -134,6 +139,7 @@ pub fn simulate_valve_steps(
     Ok(records)
 }
 
+/// Runs the closed loop for `duration` seconds and keeps every period.
 pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Result<SimulationRun, SimError> {
     if !(duration.is_finite() && duration > 0.0) {
         return Err(SimError::Duration(duration));

@@ -218,7 +218,7 @@ pub struct SpectrumArgs {
     #[arg(long, default_value_t = 4096)]
     segment: usize,
     /// Where to look for the resonance, rad/s: LOW,HIGH.
-    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [5.0, 200.0])]
+    #[arg(long, value_delimiter = ',', value_name = "LOW,HIGH", default_values_t = [5.0, 200.0])]
     band: Vec<f64>,
     /// Bins with less coherence are not trusted for the resonance.
     #[arg(long, default_value_t = 0.8)]
@@ -232,11 +232,17 @@ pub struct SpectrumArgs {
 }
 
 fn spectrum(args: SpectrumArgs) -> Result<()> {
+    let [low, high] = args.band[..] else {
+        bail!("--band takes two frequencies LOW,HIGH in rad/s, got {:?}", args.band);
+    };
+    if !(low >= 0.0 && high > low) {
+        bail!("--band {low},{high}: LOW must be at least 0 and below HIGH");
+    }
     let data = load_dataset(&args.data, &["t", &args.input, &args.output])?;
     let ts = data.sample_time()?;
     let s = welch(data.column(&args.input)?, data.column(&args.output)?, ts, args.segment)
         .with_context(|| format!("spectral analysis of {}", args.data.display()))?;
-    let resonance = s.resonance(args.band[0], args.band[1], args.min_coherence);
+    let resonance = s.resonance(low, high, args.min_coherence);
     if let Some(out) = &args.out {
         let mut writer = csv::Writer::from_path(out).with_context(|| format!("cannot write {}", out.display()))?;
         writer.write_record([
@@ -276,7 +282,7 @@ fn spectrum(args: SpectrumArgs) -> Result<()> {
         ),
         None => format!(
             "{} → {}: no resonance between {} and {} rad/s with coherence ≥ {}; {} segments, resolution {:.2} rad/s\n",
-            args.input, args.output, args.band[0], args.band[1], args.min_coherence, s.segments, resolution
+            args.input, args.output, low, high, args.min_coherence, s.segments, resolution
         ),
     })
 }

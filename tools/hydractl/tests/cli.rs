@@ -441,7 +441,7 @@ fn ident_mech_friction_map_spectrum_and_pid_iae_on_the_simulated_rotator() {
     let spectrum: serde_json::Value = serde_json::from_str(&run_ok(
         hydractl()
             .args([
-                "ident", "spectrum", "--json", "--input", "u", "--output", "torque", "--data",
+                "ident", "spectrum", "--json", "--input", "u", "--output", "torque", "--band", "10,100", "--data",
             ])
             .arg(&cascade),
     ))

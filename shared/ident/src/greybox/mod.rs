@@ -356,11 +356,15 @@ pub fn predict_mechanical(
                     Some(play),
                     &mut shaft,
                 );
-                let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, 0.0);
+                let offset = match effects.quantization {
+                    Some(q) => best_quantized_offset(effects, q.step, &signals.theta[segment.clone()], &shaft),
+                    None => 0.0,
+                };
+                let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, offset);
                 if error < best_error {
                     best_error = error;
                     best.clear();
-                    best.extend_from_slice(&shaft);
+                    best.extend(shaft.iter().map(|s| s + offset));
                 }
             }
         }
