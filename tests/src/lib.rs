@@ -369,6 +369,49 @@ pub fn recorded_sequences(path: &Path) -> BTreeMap<String, BTreeSet<u64>> {
     recorded
 }
 
+/// A `hydractl run` recording to MCAP in `dir` while a witness watches the
+/// loop's services, for the fault tests' "nothing lost" check.
+pub struct RecordedRun {
+    pub run: RunGuard,
+    witness: WitnessThread,
+    summary: PathBuf,
+    recording: PathBuf,
+}
+
+impl RecordedRun {
+    /// Starts `hydractl run ARGS --summary-json --record` (the witness first,
+    /// so it sees the run's first samples).
+    pub fn start(scope: &RunScope, dir: &Path, args: &[&str]) -> Self {
+        let (summary, recording) = (dir.join("summary.json"), dir.join("run.mcap"));
+        let witness = Witness::in_background(scope);
+        let mut all: Vec<&str> = args.to_vec();
+        all.extend([
+            "--summary-json",
+            summary.to_str().expect("path"),
+            "--record",
+            recording.to_str().expect("path"),
+        ]);
+        let run = start_run(scope, &all);
+        Self {
+            run,
+            witness,
+            summary,
+            recording,
+        }
+    }
+
+    /// SIGTERM; a clean exit; the recording holds everything the witness
+    /// saw. Returns the run's summary.
+    pub fn finish(mut self) -> serde_json::Value {
+        signal(self.run.id(), nix::sys::signal::Signal::SIGTERM);
+        assert!(wait_exit(&mut self.run.0, Duration::from_secs(30)).success());
+        let seen = self.witness.finish();
+        let summary = read_json(&self.summary);
+        assert_recorded_everything(&seen, &self.recording, &summary);
+        summary
+    }
+}
+
 /// The run's single recording holds every sample the witness saw published
 /// on the loop's services, and the recorder dropped nothing.
 pub fn assert_recorded_everything(

@@ -37,20 +37,8 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
         sim.replacen("healthy_after_ms = 5000", "healthy_after_ms = 100", 1)
             .replacen("max_restarts = 20", "max_restarts = 1000", 1)
     });
-    let (summary, recording) = (dir.join("summary.json"), dir.join("kills.mcap"));
     let observer = Observer::open(&scope);
-    let witness = Witness::in_background(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--config",
-            config_path.to_str().expect("path"),
-            "--summary-json",
-            summary.to_str().expect("path"),
-            "--record",
-            recording.to_str().expect("path"),
-        ],
-    );
+    let run = RecordedRun::start(&scope, &dir, &["--config", config_path.to_str().expect("path")]);
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     let mut rng = Lcg(2026);
     let mut killed: Vec<(&str, u32)> = Vec::new();
@@ -96,11 +84,7 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
             "kill {k}: {name}: the loop did not resume"
         );
     }
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let seen = witness.finish();
-    let summary: serde_json::Value = read_json(&summary);
-    assert_recorded_everything(&seen, &recording, &summary);
+    let summary = run.finish();
     let faults = summary["faults"].as_array().expect("faults");
     let accounted: Vec<(&str, u32)> = faults
         .iter()

@@ -218,20 +218,8 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     let _turn = serial();
     let scope = unique_scope("sigstop");
     let dir = scratch_dir("sigstop");
-    let (summary, recording) = (dir.join("summary.json"), dir.join("sigstop.mcap"));
     let observer = Observer::open(&scope);
-    let witness = Witness::in_background(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--duration",
-            "30",
-            "--summary-json",
-            summary.to_str().expect("path"),
-            "--record",
-            recording.to_str().expect("path"),
-        ],
-    );
+    let run = RecordedRun::start(&scope, &dir, &["--duration", "30"]);
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     let pid = observer.pid_of("torque", Duration::from_secs(2)).expect("torque");
     signal(pid, Signal::SIGSTOP);
@@ -245,11 +233,7 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     assert!(restarted.is_some(), "a new torque process");
     observer.drain_valve();
     assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop resumes");
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let seen = witness.finish();
-    let summary: serde_json::Value = read_json(&summary);
-    assert_recorded_everything(&seen, &recording, &summary);
+    let summary = run.finish();
     let faults = summary["faults"].as_array().expect("faults");
     assert_eq!(faults.len(), 1, "{summary}");
     assert_eq!(
@@ -276,20 +260,8 @@ fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
     let _turn = serial();
     let scope = unique_scope("nan");
     let dir = scratch_dir("nan");
-    let (summary, recording) = (dir.join("summary.json"), dir.join("nan.mcap"));
     let observer = Observer::open(&scope);
-    let witness = Witness::in_background(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--duration",
-            "30",
-            "--summary-json",
-            summary.to_str().expect("path"),
-            "--record",
-            recording.to_str().expect("path"),
-        ],
-    );
+    let run = RecordedRun::start(&scope, &dir, &["--duration", "30"]);
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     // A second publisher on the torque service: a controller gone wrong.
     let bus = hydractl_bus::Bus::open(&scope, "injector").expect("node");
@@ -330,11 +302,7 @@ fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
         observer.wait_healthy(300, Duration::from_secs(5)),
         "the loop carries on"
     );
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let seen = witness.finish();
-    let summary = read_json(&summary);
-    assert_recorded_everything(&seen, &recording, &summary);
+    let summary = run.finish();
     assert!(
         summary["rms_tracking_error_rad"].as_f64().is_some_and(f64::is_finite),
         "{summary}"
@@ -444,21 +412,11 @@ fn a_limit_cycling_torque_loop_is_held_neutral_and_restarted_into_its_fallback_v
         sim.replace("fallback_variants = {}", "fallback_variants = { torque = \"hinf\" }")
             .replace("[control.torque.pid]\nkp = 2.0e-3", "[control.torque.pid]\nkp = 5.0e-2")
     });
-    let (summary, recording) = (dir.join("summary.json"), dir.join("limit_cycle.mcap"));
     let observer = Observer::open(&scope);
-    let witness = Witness::in_background(&scope);
-    let mut run = start_run(
+    let run = RecordedRun::start(
         &scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            "30",
-            "--summary-json",
-            summary.to_str().expect("path"),
-            "--record",
-            recording.to_str().expect("path"),
-        ],
+        &dir,
+        &["--config", config.to_str().expect("path"), "--duration", "30"],
     );
     // The limit cycle is found, the valve held neutral, the inner loop
     // restarted as H∞, and the loop then runs healthy.
@@ -479,11 +437,7 @@ fn a_limit_cycling_torque_loop_is_held_neutral_and_restarted_into_its_fallback_v
     assert!(limit_cycle_flags > 0, "the valve found the limit cycle");
     assert!(healthy_after >= 1000, "the loop runs healthy after it");
     assert_eq!(process(&status(&scope), "torque")["variant"], "hinf");
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let seen = witness.finish();
-    let summary = read_json(&summary);
-    assert_recorded_everything(&seen, &recording, &summary);
+    let summary = run.finish();
     let faults = summary["faults"].as_array().expect("faults");
     assert_eq!(faults.len(), 1, "one fault, the torque loop's: {summary}");
     let f = &faults[0];

@@ -147,30 +147,6 @@ mod tests {
         let (j, b) = (0.0085, 0.0554);
         let (r1, y1) = p_controlled(j, b, 0.04, 60.0, 1);
         let (r2, y2) = p_controlled(j, b, 0.16, 60.0, 2);
-        let estimate = mechanics_from_p_control(
-            &[
-                PControlledRun {
-                    kp: 0.04,
-                    reference: &r1,
-                    angle: &y1,
-                },
-                PControlledRun {
-                    kp: 0.16,
-                    reference: &r2,
-                    angle: &y2,
-                },
-            ],
-            1e-3,
-            1,
-        )
-        .expect("identified");
-        assert!((estimate.j_hat - j).abs() < 0.05 * j, "{estimate:?}");
-        assert!((estimate.b_hat - b).abs() < 0.05 * b, "{estimate:?}");
-        for run in &estimate.runs {
-            assert!(run.fit_percent > 90.0, "{run:?}");
-            // b₁ ≈ 0, b₀ ≈ a₀ = K_p / Ĵ (eq. 15).
-            assert!((run.num.last().copied().unwrap_or(0.0) - run.den[2]).abs() < 0.05 * run.den[2]);
-        }
         let runs = [
             PControlledRun {
                 kp: 0.04,
@@ -183,6 +159,14 @@ mod tests {
                 angle: &y2,
             },
         ];
+        let estimate = mechanics_from_p_control(&runs, 1e-3, 1).expect("identified");
+        assert!((estimate.j_hat - j).abs() < 0.05 * j, "{estimate:?}");
+        assert!((estimate.b_hat - b).abs() < 0.05 * b, "{estimate:?}");
+        for run in &estimate.runs {
+            assert!(run.fit_percent > 90.0, "{run:?}");
+            // b₁ ≈ 0, b₀ ≈ a₀ = K_p / Ĵ (eq. 15).
+            assert!((run.num.last().copied().unwrap_or(0.0) - run.den[2]).abs() < 0.05 * run.den[2]);
+        }
         let eq14 = mechanics_from_p_control(&runs, 1e-3, 0).expect("identified");
         assert!((eq14.j_hat - j).abs() < 0.05 * j, "{eq14:?}");
         assert!((eq14.b_hat - b).abs() < 0.05 * b, "{eq14:?}");

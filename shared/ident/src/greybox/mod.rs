@@ -321,16 +321,13 @@ pub fn predict_mechanical(
                 None,
                 &mut shaft,
             );
-            let offset = match effects.quantization {
-                Some(q) => best_quantized_offset(effects, q.step, &signals.theta[segment.clone()], &shaft),
-                None => 0.0,
-            };
-            let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, offset);
-            if error < best_error {
-                best_error = error;
-                best.clear();
-                best.extend(shaft.iter().map(|s| s + offset));
-            }
+            keep_if_better(
+                effects,
+                &signals.theta[segment.clone()],
+                &shaft,
+                &mut best,
+                &mut best_error,
+            );
             if pass + 1 == passes {
                 break;
             }
@@ -356,16 +353,13 @@ pub fn predict_mechanical(
                     Some(play),
                     &mut shaft,
                 );
-                let offset = match effects.quantization {
-                    Some(q) => best_quantized_offset(effects, q.step, &signals.theta[segment.clone()], &shaft),
-                    None => 0.0,
-                };
-                let error = segment_error(effects, &signals.theta[segment.clone()], &shaft, offset);
-                if error < best_error {
-                    best_error = error;
-                    best.clear();
-                    best.extend(shaft.iter().map(|s| s + offset));
-                }
+                keep_if_better(
+                    effects,
+                    &signals.theta[segment.clone()],
+                    &shaft,
+                    &mut best,
+                    &mut best_error,
+                );
             }
         }
         if let Some(q) = effects.quantization {
@@ -383,6 +377,22 @@ pub fn predict_mechanical(
         for (i, k) in segment.clone().enumerate() {
             out.theta[k] = encoder_reading(effects, best[i]);
         }
+    }
+}
+
+/// Scores a simulated segment against the measurement, at its best shift
+/// within a quantization step, and keeps it (shifted) in `best` when it
+/// beats `best_error`.
+fn keep_if_better(effects: &Effects, measured: &[f64], shaft: &[f64], best: &mut Vec<f64>, best_error: &mut f64) {
+    let offset = match effects.quantization {
+        Some(q) => best_quantized_offset(effects, q.step, measured, shaft),
+        None => 0.0,
+    };
+    let error = segment_error(effects, measured, shaft, offset);
+    if error < *best_error {
+        *best_error = error;
+        best.clear();
+        best.extend(shaft.iter().map(|s| s + offset));
     }
 }
 
