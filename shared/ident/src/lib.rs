@@ -9,6 +9,6 @@ pub mod spectral;
 pub mod tf;
 
 pub use data::{DataError, Dataset};
-pub use tf::{fit_percent, identify_tf, IdentError, Method, TfFit, TfOptions};
+pub use tf::{fit_percent, identify_tf, IdentError, Method, NoiseModel, TfFit, TfOptions};
 pub mod greybox;
 pub mod lm;

@@ -198,6 +198,32 @@ mod tests {
         assert!(errors.last().copied().unwrap_or(1.0) < 0.01 * tuning.step, "{tuned:?}");
     }
 
+    /// The closed loop's characteristic polynomial s A(s) + (kd s² + kp s + ki) B(s)
+    /// under an ideal PID (no filter, no limits) and unit feedback.
+    fn closed_loop_poles(model: &TransferFunction, [kp, ki, kd]: [f64; 3]) -> Vec<hydractl_lti::Complex<f64>> {
+        let open = hydractl_lti::poly_mul(&[1.0, 0.0], model.den());
+        let pid = hydractl_lti::poly_mul(&[kd, kp, ki], model.num());
+        let mut characteristic = open.clone();
+        for (c, p) in characteristic.iter_mut().rev().zip(pid.iter().rev()) {
+            *c += p;
+        }
+        hydractl_lti::poly_roots(&characteristic)
+    }
+
+    /// Why the paper's gains are not reproduced: under an ideal PID and unit
+    /// feedback on eq. (18) itself they are unstable (a pair near
+    /// 3.6 ± 43j), so the paper must have tuned on a loop it did not
+    /// publish; the gains found here are stable.
+    #[test]
+    fn the_papers_gains_are_unstable_on_its_own_eq18_and_the_found_ones_are_not() {
+        let model = rotary_eq18();
+        let paper = closed_loop_poles(&model, [0.2, 5.6, 0.02]);
+        assert!(paper.iter().any(|p| p.re > 3.0 && p.im.abs() > 40.0), "{paper:?}");
+        let tuned = tune_pid_iae(&model, &[[0.2, 5.6, 0.02]], IaeTuning::default()).expect("tuned");
+        let found = closed_loop_poles(&model, [tuned.kp, tuned.ki, tuned.kd]);
+        assert!(found.iter().all(|p| p.re < 0.0), "{tuned:?}: {found:?}");
+    }
+
     #[test]
     fn a_diverging_loop_has_an_infinite_iae() {
         // A pure integrator under huge gains with a long period diverges.

@@ -7,8 +7,12 @@
 //!    refitted to the requested number of zeros on the frequency response.
 //! 4. Levenberg–Marquardt on the continuous coefficients: `oe` minimizes
 //!    the simulated output's error; `pem` then goes on from that model to
-//!    minimize the one-step prediction error of the zero-order-hold model
-//!    with an ARMAX noise model, A y = B u + C e, C estimated too.
+//!    minimize the one-step prediction error of the Box–Jenkins structure
+//!    y = G u + C/D e, the zero-order-hold G and a second-order noise model
+//!    C/D estimated together. The noise model is kept low in order on
+//!    purpose: at 1 kHz, a noise model of the plant's own order (ARMAX)
+//!    predicts one step ahead from the last outputs so well that G is left
+//!    almost free, and drifts.
 //!
 //! The fit is MATLAB `compare`'s, 100 (1 − ‖y − ŷ‖ / ‖y − mean y‖), on the
 //! validation segment, simulating the model from rest over all the data.
@@ -38,7 +42,7 @@ pub enum IdentError {
 pub enum Method {
     /// Output error: the simulated output's error.
     Oe,
-    /// Prediction error with an ARX noise model.
+    /// Prediction error with a second-order Box–Jenkins noise model.
     Pem,
 }
 
@@ -58,7 +62,17 @@ pub struct TfFit {
     pub fit_percent: f64,
     /// On the estimation segment, percent.
     pub estimation_fit_percent: f64,
+    /// `pem`'s noise model, None for `oe`.
+    pub noise_model: Option<NoiseModel>,
     pub iterations: usize,
+}
+
+/// The discrete noise model H(q) = C(q)/D(q) of `pem`, in ascending powers
+/// of q^-1 from a leading 1, at the data's sample time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NoiseModel {
+    pub c: Vec<f64>,
+    pub d: Vec<f64>,
 }
 
 /// MATLAB's fit: 100 (1 − ‖y − ŷ‖ / ‖y − mean(y)‖).
@@ -110,28 +124,34 @@ pub fn identify_tf(u: &[f64], y: &[f64], ts: f64, options: TfOptions) -> Result<
 
     // 4. Refine at the data's own rate, where the zero-order hold is exact
     // (a step inside an averaged block is not held): output error first;
-    // prediction error then starts from it (with C = A it is the same
-    // model) and adds its noise model.
+    // prediction error then starts from it and adds its noise model.
     let (ue, ye) = (&u[..split], &y[..split]);
-    let (mut tf, mut iterations) = refine(&initial, ue, ye, ts, Method::Oe)?;
+    let Refined {
+        mut tf, mut iterations, ..
+    } = refine(&initial, ue, ye, ts, Method::Oe)?;
     // A pole spent on the sampling: a second start, and the better stays.
-    if let Some((other, more)) =
-        without_fast_poles(&tf, ts).and_then(|second| refine(&second, ue, ye, ts, Method::Oe).ok())
-    {
-        iterations += more;
+    if let Some(other) = without_fast_poles(&tf, ts).and_then(|second| refine(&second, ue, ye, ts, Method::Oe).ok()) {
+        iterations += other.iterations;
         let cost_of = |m: &TransferFunction| {
             simulate(m, ue, ts).map_or(f64::INFINITY, |yhat| {
                 ye.iter().zip(&yhat).map(|(a, b)| (a - b).powi(2)).sum::<f64>()
             })
         };
-        if cost_of(&other) < cost_of(&tf) {
-            tf = other;
+        if cost_of(&other.tf) < cost_of(&tf) {
+            tf = other.tf;
         }
     }
+    let mut noise_model = None;
     if method == Method::Pem {
-        let (pem, more) = refine(&tf, ue, ye, ts, Method::Pem)?;
-        tf = pem;
-        iterations += more;
+        let pem = refine(&tf, ue, ye, ts, Method::Pem)?;
+        let (c, d) = pem.noise.split_at(NOISE_ORDER);
+        let monic = |p: &[f64]| std::iter::once(1.0).chain(p.iter().copied()).collect();
+        noise_model = Some(NoiseModel {
+            c: monic(c),
+            d: monic(d),
+        });
+        tf = pem.tf;
+        iterations += pem.iterations;
     }
 
     // Fit at the data's own rate, from rest, over all of it.
@@ -140,6 +160,7 @@ pub fn identify_tf(u: &[f64], y: &[f64], ts: f64, options: TfOptions) -> Result<
         fit_percent: fit_percent(&y[split..], &simulated[split..]),
         estimation_fit_percent: fit_percent(&y[..split], &simulated[..split]),
         tf,
+        noise_model,
         iterations,
     })
 }
@@ -343,10 +364,14 @@ fn bilinear_to_continuous(p: &[f64], ts: f64) -> Vec<f64> {
     out
 }
 
+/// The order of `pem`'s noise polynomials C and D.
+const NOISE_ORDER: usize = 2;
+
 /// Parameters: the numerator's coefficients, then the denominator's below
-/// its leading 1, then (for `pem`) the discrete noise model's C below its
-/// leading 1. Scaled by their starting values, so one step size suits
-/// coefficients from 1 to 1e9.
+/// its leading 1, then (for `pem`) the noise model's C and D below their
+/// leading 1s. The transfer function's are scaled by their starting values,
+/// so one step size suits coefficients from 1 to 1e9; the noise model's lie
+/// within ±2 and are not scaled.
 struct Parameters {
     zeros: usize,
     poles: usize,
@@ -355,7 +380,7 @@ struct Parameters {
 
 impl Parameters {
     fn new(tf: &TransferFunction, noise: &[f64]) -> Self {
-        let raw: Vec<f64> = tf.num().iter().chain(&tf.den()[1..]).chain(noise).copied().collect();
+        let raw: Vec<f64> = tf.num().iter().chain(&tf.den()[1..]).copied().collect();
         let largest = raw.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
         Self {
             zeros: tf.num().len() - 1,
@@ -369,6 +394,7 @@ impl Parameters {
                         1e-6 * largest.max(1e-12)
                     }
                 })
+                .chain(noise.iter().map(|_| 1.0))
                 .collect(),
         }
     }
@@ -390,13 +416,42 @@ impl Parameters {
         Ok(TransferFunction::new(num, den)?)
     }
 
-    /// The noise model's C(q) = 1 + c1 q^-1 + …, for `pem`.
+    /// The noise model's coefficients below the leading 1s: C's, then D's
+    /// (empty for `oe`).
     fn noise(&self, theta: &DVector<f64>) -> Vec<f64> {
-        let values = self.values(theta);
-        let mut c = vec![1.0];
-        c.extend_from_slice(&values[self.zeros + self.poles + 1..]);
-        c
+        self.values(theta)[self.zeros + self.poles + 1..].to_vec()
     }
+}
+
+/// A monic polynomial in q^-1 whose roots lie inside the unit circle: its
+/// inverse filter is stable.
+fn is_minimum_phase(below_leading_one: &[f64]) -> bool {
+    let mut p = vec![1.0];
+    p.extend_from_slice(below_leading_one);
+    hydractl_lti::poly_roots(&p).iter().all(|z| z.norm() < 1.0)
+}
+
+/// `pem`'s starting noise model: C = 1 and D from a least-squares AR fit of
+/// the output error `v`, so that D v is nearly white (D = 1 when it is
+/// white already).
+fn noise_model_start(v: &[f64]) -> Vec<f64> {
+    let n = NOISE_ORDER;
+    let rows = v.len().saturating_sub(n);
+    let mut phi = DMatrix::zeros(rows, n);
+    let mut target = DVector::zeros(rows);
+    for k in n..v.len() {
+        for i in 1..=n {
+            phi[(k - n, i - 1)] = -v[k - i];
+        }
+        target[k - n] = v[k];
+    }
+    let d: Vec<f64> = phi
+        .svd(true, true)
+        .solve(&target, 1e-12)
+        .map(|d| d.iter().copied().collect())
+        .unwrap_or_else(|_| vec![0.0; n]);
+    let d = if is_minimum_phase(&d) { d } else { vec![0.0; n] };
+    std::iter::repeat_n(0.0, n).chain(d).collect()
 }
 
 fn residuals(
@@ -415,30 +470,27 @@ fn residuals(
         return Err(IdentError::Failed("unstable or beyond the Nyquist frequency".into()));
     }
     let discrete = tf.to_state_space().discretize_zoh(ts)?;
+    let yhat = simulate_discrete(&discrete, u);
+    let output_error = y.iter().zip(&yhat).map(|(a, b)| a - b);
     match method {
-        Method::Oe => {
-            let yhat = simulate_discrete(&discrete, u);
-            Ok(y.iter().zip(&yhat).map(|(a, b)| a - b).collect())
-        }
+        Method::Oe => Ok(output_error.collect()),
         Method::Pem => {
-            // ARMAX: A(q) y = B(q) u + C(q) e. The one-step prediction error
-            // is e = (A y − B u) / C; C = A is output error, and C is
-            // estimated with the rest.
-            if hydractl_lti::poly_roots(noise).iter().any(|z| z.norm() >= 1.0) {
+            // y = G u + (C/D) e: the one-step prediction error is
+            // e = (D/C) (y − G u).
+            let (c, d) = noise.split_at(NOISE_ORDER);
+            if !(is_minimum_phase(c) && is_minimum_phase(d)) {
                 return Err(IdentError::Failed("unstable noise model".into()));
             }
-            let d = discrete.transfer_function(0, 0)?;
-            let n = d.den().len() - 1;
-            let mut b = vec![0.0; d.den().len() - d.num().len()];
-            b.extend_from_slice(d.num());
-            let mut e = vec![0.0; y.len()];
-            for k in n..y.len() {
-                let ay: f64 = d.den().iter().enumerate().map(|(i, a)| a * y[k - i]).sum();
-                let bu: f64 = b.iter().enumerate().map(|(i, c)| c * u[k - i]).sum();
-                let ce: f64 = noise.iter().enumerate().skip(1).map(|(i, c)| c * e[k - i]).sum();
-                e[k] = ay - bu - ce;
+            let v: Vec<f64> = output_error.collect();
+            let mut e = vec![0.0; v.len()];
+            for k in 0..v.len() {
+                let mut ek = v[k];
+                for i in 1..=NOISE_ORDER.min(k) {
+                    ek += d[i - 1] * v[k - i] - c[i - 1] * e[k - i];
+                }
+                e[k] = ek;
             }
-            Ok(e[n..].to_vec())
+            Ok(e)
         }
     }
 }
@@ -447,31 +499,33 @@ fn cost(r: &[f64]) -> f64 {
     r.iter().map(|v| v * v).sum()
 }
 
-fn refine(
-    initial: &TransferFunction,
-    u: &[f64],
-    y: &[f64],
-    ts: f64,
-    method: Method,
-) -> Result<(TransferFunction, usize), IdentError> {
-    // The noise model starts as C = A of the discrete model: output error.
+struct Refined {
+    tf: TransferFunction,
+    /// `pem`'s C's, then D's coefficients below their leading 1s.
+    noise: Vec<f64>,
+    iterations: usize,
+}
+
+fn refine(initial: &TransferFunction, u: &[f64], y: &[f64], ts: f64, method: Method) -> Result<Refined, IdentError> {
     let noise0: Vec<f64> = match method {
         Method::Oe => Vec::new(),
-        Method::Pem => initial
-            .to_state_space()
-            .discretize_zoh(ts)?
-            .transfer_function(0, 0)?
-            .den()[1..]
-            .to_vec(),
+        Method::Pem => {
+            let v = residuals(initial, &[], u, y, ts, Method::Oe)?;
+            noise_model_start(&v)
+        }
     };
     let params = Parameters::new(initial, &noise0);
     let mut theta = params.initial(initial, &noise0);
-    let mut c0 = vec![1.0];
-    c0.extend_from_slice(&noise0);
-    let mut current = match residuals(initial, &c0, u, y, ts, method) {
+    let mut current = match residuals(initial, &noise0, u, y, ts, method) {
         Ok(r) => r,
         // The ARX start can be unstable on poor data: nothing to refine from.
-        Err(_) => return Ok((initial.clone(), 0)),
+        Err(_) => {
+            return Ok(Refined {
+                tf: initial.clone(),
+                noise: noise0,
+                iterations: 0,
+            })
+        }
     };
     let mut lambda = 1e-3;
     let mut iterations = 0;
@@ -541,5 +595,9 @@ fn refine(
             break;
         }
     }
-    Ok((params.model(&theta)?, iterations))
+    Ok(Refined {
+        tf: params.model(&theta)?,
+        noise: params.noise(&theta),
+        iterations,
+    })
 }

@@ -44,7 +44,7 @@ pub enum IdentCommand {
 
 #[derive(Clone, Copy, ValueEnum)]
 enum IdentMethod {
-    /// Prediction error, ARMAX noise model, refined from output error (experimental).
+    /// Prediction error: output error first, then G with a second-order Box–Jenkins noise model.
     Pem,
     /// Output error.
     Oe,
@@ -115,6 +115,7 @@ fn tf(args: IdentTfArgs) -> Result<()> {
             "resonances": pairs,
             "sample_time_s": ts,
             "iterations": fit.iterations,
+            "noise_model": fit.noise_model.as_ref().map(|h| serde_json::json!({"c": h.c, "d": h.d})),
         });
         return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
     }
