@@ -123,9 +123,29 @@ fn parse_resume(text: &str) -> Result<Resume, String> {
 }
 
 pub struct Started {
+    pub name: String,
     pub config: Config,
     pub bus: Bus,
     pub args: ProcessArgs,
+}
+
+impl Started {
+    /// Raises a loop process to the configured real-time priority, once
+    /// its start-up is done: at the loop's priority, a starting process
+    /// (opening files, mapping memory) would hold the loop's CPU, and stall
+    /// the running stages, for the whole of its start-up.
+    pub fn enter_realtime(&self) {
+        // The valve listens to the sensor as well as to the torque stage:
+        // one step below the chain, it waits until the chain has run
+        // instead of taking the CPU in its middle at every reading.
+        let priority = self.config.timing.realtime_priority.map(|p| match self.name.as_str() {
+            "valve" => p.saturating_sub(1).max(1),
+            _ => p,
+        });
+        if let Err(e) = placement::run_realtime(priority) {
+            eprintln!("{}: {e}", self.name);
+        }
+    }
 }
 
 /// Parses the arguments, loads the config and opens the node `name`.
@@ -147,7 +167,12 @@ pub fn start(name: &str) -> Result<Started> {
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
     let bus = Bus::open(&scope, name).with_context(|| format!("{name}: opening the bus"))?;
-    Ok(Started { config, bus, args })
+    Ok(Started {
+        name: name.to_owned(),
+        config,
+        bus,
+        args,
+    })
 }
 
 /// The trajectory's time for a sensor sequence number: the loop's own

@@ -104,6 +104,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
     let mut last_measured: Option<PlantReading> = None;
     let mut last_velocity = 0.0;
     let mut next_tick = Instant::now();
+    started.enter_realtime();
     loop {
         // Pace: sleep until this period starts; a signal ends the run.
         if node.wait(next_tick.saturating_duration_since(Instant::now())).is_err() {

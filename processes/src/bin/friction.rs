@@ -17,6 +17,7 @@ fn main() -> Result<()> {
     let out: Outlet<FrictionSample> = Outlet::open(bus, service::FRICTION)?;
     let (mut reference_velocity, mut valve_command) = (0.0, 0.0);
     let mut failure = None;
+    started.enter_realtime();
     run_single(sensor.listener(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             if let Some(p) = position.latest()? {

@@ -38,6 +38,7 @@ fn main() -> Result<()> {
     let mut tracker = Tracker::default();
     let mut latest_sensor = SensorSample::default();
     let mut failure = None;
+    started.enter_realtime();
     run_single(friction.listener(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {

@@ -45,7 +45,7 @@ fn main() -> Result<()> {
     let mut last_flush = Instant::now();
     let mut last_status = Instant::now();
     let mut failure = None;
-    run_loop(&[], Some(TICK), |_| {
+    run_loop(&[], Some(TICK), bus, |_| {
         hydractl_bus::guarded(&mut failure, || -> Result<()> {
             recorder.drain()?;
             let now = Instant::now();

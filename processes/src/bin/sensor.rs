@@ -14,6 +14,7 @@ fn main() -> Result<()> {
     let device = SimulatedSensors::open(&started.bus)?;
     let out: Outlet<SensorSample> = Outlet::open(&started.bus, service::SENSOR)?;
     let mut failure = None;
+    started.enter_realtime();
     run_single(device.listener(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             let Some(reading) = device.try_read()? else {

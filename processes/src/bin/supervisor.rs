@@ -250,7 +250,7 @@ fn supervise(
     // The newest rejected command already acted on.
     let mut misbehaving_handled: Option<u64> = None;
     let mut failure = None;
-    run_loop(&[], Some(Duration::from_millis(5)), |_| {
+    run_loop(&[], Some(Duration::from_millis(5)), bus, |_| {
         hydractl_bus::guarded(&mut failure, || -> Result<()> {
             let now = Instant::now();
             let advanced = heartbeats.advanced(&mut last_reading, &mut position_output_finite)?;
@@ -781,9 +781,7 @@ impl Swaps {
         reading: Option<u64>,
         now: Instant,
     ) -> Result<()> {
-        while let Some(v) = self.valve.next()? {
-            self.log.push(v.sensor_seq, v.command, v.faults);
-        }
+        self.take_valve_samples()?;
         let mut standby_outputs = 0;
         while self.standby_position.next()?.is_some() {
             standby_outputs += 1;
@@ -1004,9 +1002,21 @@ impl Swaps {
         )
     }
 
+    /// Moves the valve's waiting samples into the log.
+    fn take_valve_samples(&mut self) -> Result<()> {
+        while let Some(v) = self.valve.next()? {
+            self.log.push(v.sensor_seq, v.command, v.faults);
+        }
+        Ok(())
+    }
+
     /// A fault's account, once its process answers again: how long the
     /// detection, the valve's going safe and the restart took.
     fn publish_fault(&mut self, process: &str, fault: Fault, back_at: Option<Instant>) -> Result<()> {
+        // The valve's samples up to now, not up to the last tick: a tick
+        // that came late (the supervisor shares its CPU with the recorder
+        // and everything else) must not hide the valve's going safe.
+        self.take_valve_samples()?;
         // The command for reading `seq + 1` was due when reading `seq + 2`
         // came: the fault shows from there; until the guard trips the
         // valve holds its last command.

@@ -26,9 +26,11 @@ fn main() -> Result<()> {
     let mut last_input = Instant::now();
     let mut failure = None;
     // The tick is the valve's own clock, for when readings stop too.
+    started.enter_realtime();
     run_loop(
         &[torque.listener(), sensor.listener()],
         Some(silence_timeout / 4),
+        &started.bus,
         |wake| {
             hydractl_bus::guarded(&mut failure, || {
                 // Every reading counts towards the guard, the one that woke us

@@ -41,6 +41,10 @@ fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
         .service_builder(&service_name)
         .event()
         .max_nodes(MAX_NODES + 4)
+        // Only event 0 is sent. Each wake-up drains every event id's counter
+        // (one atomic swap each): iceoryx2's default of 256 ids cost about
+        // 2 µs per hop.
+        .event_id_max_value(0)
         .open_or_create()
         .map_err(|e| BusError::ipc(format!("opening event {name}"), e))?;
     Ok((data, event))
@@ -199,6 +203,10 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
         if timeout < Duration::from_micros(1) {
             return Ok(None);
         }
+        // The listener's own timed wait, not `ppoll` as in `run_loop`: for
+        // the plant, which waits here right after publishing a reading, it
+        // measured faster to the sensor's wake-up (p50 9 against 12–16 µs
+        // over three 10 s runs each), although it makes more system calls.
         match self.listener.timed_wait(|_| {}, timeout) {
             // Any signal interrupts the sleep; it is the caller's loop that
             // decides whether a signal ends the run.

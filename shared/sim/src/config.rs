@@ -80,6 +80,12 @@ pub struct Timing {
     /// place them. A wake-up across cores costs about 25 µs per hop on a
     /// small virtual machine; on one core the pipeline's hand-offs are cheap.
     pub loop_cpu: Option<usize>,
+    /// SCHED_FIFO priority (1–98) of the live loop's processes; none for
+    /// the normal scheduler. Above every ordinary process, a stage is never
+    /// preempted by one, only by the kernel and by higher real-time work;
+    /// the kernel's real-time throttling (95% of each second by default)
+    /// still leaves the CPU to others should a stage spin.
+    pub realtime_priority: Option<u8>,
     /// What the live plant process does when the computer stalls.
     pub stall_policy: StallPolicy,
     /// How long, in periods, the paused plant waits for a command before it
@@ -104,6 +110,7 @@ impl Default for Timing {
             control_rate_hz: 1000.0,
             integration_rate_hz: 10_000.0,
             loop_cpu: None,
+            realtime_priority: None,
             stall_policy: StallPolicy::Pause,
             command_timeout_periods: 1.5,
         }
@@ -521,6 +528,12 @@ impl Config {
                     "command_timeout_periods must be positive, got {}",
                     t.command_timeout_periods
                 ),
+            });
+        }
+        if let Some(priority) = t.realtime_priority.filter(|p| !(1..=98).contains(p)) {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: format!("realtime_priority must be within 1–98 (99 is the kernel's own), got {priority}"),
             });
         }
         let ratio = t.integration_rate_hz / t.control_rate_hz;

@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hydractl_bus::{clock, placement, quiet_ipc_logging, run_loop, Bus, Inlet, Outlet, RunScope, PREFIX_ENV};
+use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, RunScope, PREFIX_ENV};
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
 use hydractl_sim::stack::{
@@ -170,7 +170,7 @@ fn quantile_us(sorted: &[u64], q: f64) -> f64 {
 pub fn bench(args: LatencyArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::default_sim()?;
-    if let Err(e) = placement::pin_to_loop_cpu(config.timing.loop_cpu) {
+    for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         eprintln!("{e}");
     }
     let cycles = (args.duration * 1000.0).round() as u64;
@@ -389,7 +389,7 @@ fn drive(
 pub fn stage(args: StageArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::default_sim()?;
-    if let Err(e) = placement::pin_to_loop_cpu(config.timing.loop_cpu) {
+    for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         eprintln!("{e}");
     }
     let mut stage = Stage::new(args.index, &config)?;
@@ -412,11 +412,7 @@ pub fn stage(args: StageArgs) -> Result<()> {
                     Ok(())
                 })
             };
-            if std::env::var("HYDRACTL_BENCH_WAITSET").is_ok() {
-                run_loop(&[input.listener()], None, |_| on_input())?;
-            } else {
-                hydractl_bus::run_single(input.listener(), &bus, &mut on_input)?;
-            }
+            hydractl_bus::run_single(input.listener(), &bus, &mut on_input)?;
             failure.map_or(Ok(()), Err)
         }
         "udp" => {

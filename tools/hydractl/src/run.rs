@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, RunScope, PREFIX_ENV};
 use hydractl_samples::{
-    code, name_str, service, PlantReading, PositionSample, SupervisorEvent, SupervisorStatus, ValveSample,
+    code, name_str, service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent,
+    SupervisorStatus, ValveSample,
 };
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
@@ -59,6 +60,15 @@ impl LatencyHistogram {
         self.max_ns = self.max_ns.max(ns);
     }
 
+    fn summary(&self) -> LatencySummary {
+        LatencySummary {
+            p50: self.quantile_us(0.5),
+            p99: self.quantile_us(0.99),
+            p999: self.quantile_us(0.999),
+            max: self.max_ns as f64 / 1000.0,
+        }
+    }
+
     /// The quantile in µs (upper edge of its bin).
     fn quantile_us(&self, q: f64) -> f64 {
         if self.count == 0 {
@@ -75,6 +85,15 @@ impl LatencyHistogram {
         self.max_ns as f64 / 1000.0
     }
 }
+
+#[derive(Serialize)]
+struct StageLatency {
+    stage: &'static str,
+    from_reading: LatencySummary,
+}
+
+/// The chain's stages, in order, as `latency_by_stage_us` names them.
+const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
 
 #[derive(Serialize)]
 struct LatencySummary {
@@ -98,6 +117,9 @@ struct RunSummary {
     deadline_misses: u64,
     /// Sensor reading to valve command, from the samples' own timestamps.
     latency_us: LatencySummary,
+    /// From the sensor reading to each stage's output, stage by stage along
+    /// the chain: where the time goes.
+    latency_by_stage_us: Vec<StageLatency>,
     max_abs_tracking_error_rad: f64,
     rms_tracking_error_rad: f64,
     /// Valve samples published in neutral with a fault flag.
@@ -284,6 +306,9 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let end = args.duration.map(|d| started + Duration::from_secs_f64(d.max(0.0)));
     let live = std::io::stderr().is_terminal();
     let mut latency = LatencyHistogram::new();
+    let mut by_stage: [LatencyHistogram; 5] = std::array::from_fn(|_| LatencyHistogram::new());
+    let sensor: Reader<SensorSample> = Reader::open(&bus, service::SENSOR, 256)?;
+    let friction: Reader<FrictionSample> = Reader::open(&bus, service::FRICTION, 256)?;
     let mut tracking = Tracking::default();
     let mut cycles = 0u64;
     let mut faults = 0u64;
@@ -297,7 +322,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let mut last_print = Instant::now();
     let mut cycles_at_last_print = 0u64;
     let (mut outer_variant, mut inner_variant) = ("?", "?");
-    let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 4)?;
+    let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 256)?;
     let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
     let (mut swaps, mut swap_failures, mut faults_seen) = (Vec::new(), Vec::new(), Vec::new());
     let mut plant_switches = Vec::new();
@@ -305,7 +330,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     // Each plant counts its own late commands.
     let mut late_by_source = [0u64; 2];
     let mut failure = None;
-    let exit = run_loop(&[], Some(Duration::from_millis(10)), |_| {
+    let exit = run_loop(&[], Some(Duration::from_millis(10)), &bus, |_| {
         let mut step = || -> Result<Flow> {
             while let Some(v) = valve.next()? {
                 // One command per sensor reading; a neutral published on a
@@ -316,13 +341,21 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                     // Only a sample derived from a reading has a latency.
                     if v.sensor_time_ns != 0 {
                         latency.record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
+                        by_stage[4].record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
                     }
                 }
                 if v.faults != 0 {
                     faults += 1;
                 }
             }
+            while let Some(x) = sensor.next()? {
+                by_stage[0].record(x.stage_time_ns.saturating_sub(x.sensor_time_ns));
+            }
+            while let Some(x) = friction.next()? {
+                by_stage[1].record(x.stage_time_ns.saturating_sub(x.sensor_time_ns));
+            }
             while let Some(p) = position.next()? {
+                by_stage[2].record(p.stage_time_ns.saturating_sub(p.sensor_time_ns));
                 outer_variant = code::variant_name(p.variant);
                 if p.structure == hydractl_samples::code::STRUCTURE_POSITION {
                     inner_variant = "bypassed";
@@ -336,7 +369,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 late_by_source[usize::from(p.source == hydractl_samples::source::MACHINE)] = p.late_commands;
                 late = late_by_source.iter().sum();
             }
-            if let Some(t) = torque.latest()? {
+            while let Some(t) = torque.next()? {
+                by_stage[3].record(t.stage_time_ns.saturating_sub(t.sensor_time_ns));
                 if inner_variant != "bypassed" {
                     inner_variant = code::variant_name(t.variant);
                 }
@@ -453,12 +487,15 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         duration_s: started.elapsed().as_secs_f64(),
         cycles,
         deadline_misses: late,
-        latency_us: LatencySummary {
-            p50: latency.quantile_us(0.5),
-            p99: latency.quantile_us(0.99),
-            p999: latency.quantile_us(0.999),
-            max: latency.max_ns as f64 / 1000.0,
-        },
+        latency_us: latency.summary(),
+        latency_by_stage_us: STAGES
+            .iter()
+            .zip(&by_stage)
+            .map(|(stage, h)| StageLatency {
+                stage,
+                from_reading: h.summary(),
+            })
+            .collect(),
         max_abs_tracking_error_rad: tracking.max_abs,
         rms_tracking_error_rad: (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
         valve_fault_cycles: faults,
