@@ -708,5 +708,12 @@ mod tests {
         let bad = format!("{DEFAULT_SIM_TOML}\n[effects.dedzone]\n");
         let err = Config::parse(&bad, Path::new("x.toml")).expect_err("unknown effect");
         assert!(err.to_string().contains("deadzone"), "lists the valid names: {err}");
+
+        let bad = DEFAULT_SIM_TOML.replace("realtime_priority = 50", "realtime_priority = 99");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("the kernel's priority");
+        assert!(
+            err.to_string().contains("x.toml") && err.to_string().contains("realtime_priority"),
+            "{err}"
+        );
     }
 }
