@@ -412,11 +412,20 @@ fn encoder_reading(effects: &Effects, shaft: f64) -> f64 {
 }
 
 fn segment_error(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64) -> f64 {
-    measured
-        .iter()
-        .zip(shaft)
-        .map(|(m, s)| (m - encoder_reading(effects, s + offset)).powi(2))
-        .sum()
+    segment_error_below(effects, measured, shaft, offset, f64::INFINITY)
+}
+
+/// [`segment_error`], given up (infinite) once it reaches `bound`: its
+/// terms only add, so a search that keeps the smallest is unchanged by it.
+fn segment_error_below(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64, bound: f64) -> f64 {
+    let mut sum = 0.0;
+    for (m, s) in measured.iter().zip(shaft) {
+        sum += (m - encoder_reading(effects, s + offset)).powi(2);
+        if sum >= bound {
+            return f64::INFINITY;
+        }
+    }
+    sum
 }
 
 /// With a coarse encoder, least squares on the staircase leaves the initial
@@ -427,7 +436,7 @@ fn best_quantized_offset(effects: &Effects, step: f64, measured: &[f64], shaft: 
     let mut best = (f64::INFINITY, 0.0);
     for i in 0..TRIES {
         let offset = step * (i as f64 / (TRIES - 1) as f64 - 0.5);
-        let error = segment_error(effects, measured, shaft, offset);
+        let error = segment_error_below(effects, measured, shaft, offset, best.0);
         if error < best.0 {
             best = (error, offset);
         }
@@ -471,15 +480,21 @@ fn refine_on_staircase(
         })
         .collect();
     let span_t = sensitivity[n - 1].max(signals.dt);
-    let error = |d_angle: f64, d_velocity: f64| -> f64 {
-        (0..n)
-            .map(|i| {
-                let shifted = path[i] + d_angle + d_velocity * sensitivity[i];
-                (measured[i] - encoder_reading(effects, shifted)).powi(2)
-            })
-            .sum()
+    // The squared error of a shift, given up (infinite) once it reaches
+    // `bound`: its terms only add, so the search's choices are exact, and
+    // most shifts of the grid are out of the race after a few samples.
+    let error = |d_angle: f64, d_velocity: f64, bound: f64| -> f64 {
+        let mut sum = 0.0;
+        for i in 0..n {
+            let shifted = path[i] + d_angle + d_velocity * sensitivity[i];
+            sum += (measured[i] - encoder_reading(effects, shifted)).powi(2);
+            if sum >= bound {
+                return f64::INFINITY;
+            }
+        }
+        sum
     };
-    let mut best = (error(0.0, 0.0), 0.0, 0.0);
+    let mut best = (error(0.0, 0.0, f64::INFINITY), 0.0, 0.0);
     let (mut angle_span, mut velocity_span) = (0.5 * step, 2.0 * step / span_t);
     let (mut centre_angle, mut centre_velocity) = (0.0, 0.0);
     for _ in 0..3 {
@@ -487,7 +502,7 @@ fn refine_on_staircase(
             for v in -GRID..=GRID {
                 let d_angle = centre_angle + angle_span * f64::from(a) / f64::from(GRID);
                 let d_velocity = centre_velocity + velocity_span * f64::from(v) / f64::from(GRID);
-                let e = error(d_angle, d_velocity);
+                let e = error(d_angle, d_velocity, best.0);
                 if e < best.0 {
                     best = (e, d_angle, d_velocity);
                 }
