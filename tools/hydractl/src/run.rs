@@ -53,7 +53,8 @@ impl LatencyHistogram {
         }
     }
 
-    fn record(&mut self, ns: u64) {
+    fn record_between(&mut self, from_ns: u64, to_ns: u64) {
+        let ns = to_ns.saturating_sub(from_ns);
         let us = (ns / 1000) as usize;
         self.bins[us.min(Self::BINS)] += 1;
         self.count += 1;
@@ -94,6 +95,7 @@ struct StageLatency {
 
 /// The chain's stages, in order, as `latency_by_stage_us` names them.
 const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
+const VALVE_STAGE: usize = STAGES.len() - 1;
 
 #[derive(Serialize)]
 struct LatencySummary {
@@ -305,8 +307,9 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let started = Instant::now();
     let end = args.duration.map(|d| started + Duration::from_secs_f64(d.max(0.0)));
     let live = std::io::stderr().is_terminal();
-    let mut latency = LatencyHistogram::new();
-    let mut by_stage: [LatencyHistogram; 5] = std::array::from_fn(|_| LatencyHistogram::new());
+    // From the reading to each stage's output; the valve's is the
+    // sensor-to-valve latency.
+    let mut by_stage: [LatencyHistogram; STAGES.len()] = std::array::from_fn(|_| LatencyHistogram::new());
     let sensor: Reader<SensorSample> = Reader::open(&bus, service::SENSOR, 256)?;
     let friction: Reader<FrictionSample> = Reader::open(&bus, service::FRICTION, 256)?;
     let mut tracking = Tracking::default();
@@ -340,8 +343,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                     last_valve_seq = Some(v.sensor_seq);
                     // Only a sample derived from a reading has a latency.
                     if v.sensor_time_ns != 0 {
-                        latency.record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
-                        by_stage[4].record(v.stage_time_ns.saturating_sub(v.sensor_time_ns));
+                        by_stage[VALVE_STAGE].record_between(v.sensor_time_ns, v.stage_time_ns);
                     }
                 }
                 if v.faults != 0 {
@@ -349,13 +351,13 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 }
             }
             while let Some(x) = sensor.next()? {
-                by_stage[0].record(x.stage_time_ns.saturating_sub(x.sensor_time_ns));
+                by_stage[0].record_between(x.sensor_time_ns, x.stage_time_ns);
             }
             while let Some(x) = friction.next()? {
-                by_stage[1].record(x.stage_time_ns.saturating_sub(x.sensor_time_ns));
+                by_stage[1].record_between(x.sensor_time_ns, x.stage_time_ns);
             }
             while let Some(p) = position.next()? {
-                by_stage[2].record(p.stage_time_ns.saturating_sub(p.sensor_time_ns));
+                by_stage[2].record_between(p.sensor_time_ns, p.stage_time_ns);
                 outer_variant = code::variant_name(p.variant);
                 if p.structure == hydractl_samples::code::STRUCTURE_POSITION {
                     inner_variant = "bypassed";
@@ -370,7 +372,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 late = late_by_source.iter().sum();
             }
             while let Some(t) = torque.next()? {
-                by_stage[3].record(t.stage_time_ns.saturating_sub(t.sensor_time_ns));
+                by_stage[3].record_between(t.sensor_time_ns, t.stage_time_ns);
                 if inner_variant != "bypassed" {
                     inner_variant = code::variant_name(t.variant);
                 }
@@ -443,8 +445,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                     if on_simulation { "SIMULATION" } else { "machine" },
                     rate,
                     late,
-                    latency.quantile_us(0.5),
-                    latency.quantile_us(0.99),
+                    by_stage[VALVE_STAGE].quantile_us(0.5),
+                    by_stage[VALVE_STAGE].quantile_us(0.99),
                     (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
                     tracking.max_abs,
                     outer_variant,
@@ -487,7 +489,7 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
         duration_s: started.elapsed().as_secs_f64(),
         cycles,
         deadline_misses: late,
-        latency_us: latency.summary(),
+        latency_us: by_stage[VALVE_STAGE].summary(),
         latency_by_stage_us: STAGES
             .iter()
             .zip(&by_stage)

@@ -309,25 +309,17 @@ pub fn predict_mechanical(
         // (with backlash or friction the correction's linear view can miss).
         let mut best_error = f64::INFINITY;
         best.clear();
+        let measured = &signals.theta[segment.clone()];
+        // Simulates the segment from an initial state (and a position in the
+        // play) into `shaft`, and keeps it in `best` when it fits better.
+        let mut try_start = |initial: (f64, f64), play: Option<f64>, shaft: &mut Vec<f64>| {
+            simulate_segment(plant, effects, signals, segment.clone(), initial, play, shaft);
+            keep_if_better(effects, measured, shaft, &mut best, &mut best_error);
+        };
         // Without a mechanical effect the correction is exact: two passes do.
         let passes = if nonlinear_mechanics(effects) { 3 } else { 2 };
         for pass in 0..passes {
-            simulate_segment(
-                plant,
-                effects,
-                signals,
-                segment.clone(),
-                (initial_angle, initial_velocity),
-                None,
-                &mut shaft,
-            );
-            keep_if_better(
-                effects,
-                &signals.theta[segment.clone()],
-                &shaft,
-                &mut best,
-                &mut best_error,
-            );
+            try_start((initial_angle, initial_velocity), None, &mut shaft);
             if pass + 1 == passes {
                 break;
             }
@@ -344,33 +336,11 @@ pub fn predict_mechanical(
             const POSITIONS: usize = 3;
             for i in 0..POSITIONS {
                 let play = backlash.width * (i as f64 / (POSITIONS - 1) as f64 - 0.5);
-                simulate_segment(
-                    plant,
-                    effects,
-                    signals,
-                    segment.clone(),
-                    (initial_angle, initial_velocity),
-                    Some(play),
-                    &mut shaft,
-                );
-                keep_if_better(
-                    effects,
-                    &signals.theta[segment.clone()],
-                    &shaft,
-                    &mut best,
-                    &mut best_error,
-                );
+                try_start((initial_angle, initial_velocity), Some(play), &mut shaft);
             }
         }
         if let Some(q) = effects.quantization {
-            refine_on_staircase(
-                plant,
-                signals,
-                q.step,
-                effects,
-                &signals.theta[segment.clone()],
-                &mut best,
-            );
+            refine_on_staircase(plant, signals, q.step, effects, measured, &mut best);
         }
         // A diverged simulation leaves NaN, which the fit refuses.
         best.resize(segment.len(), f64::NAN);
