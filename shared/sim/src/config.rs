@@ -86,6 +86,13 @@ pub struct Timing {
     /// the kernel's real-time throttling (95% of each second by default)
     /// still leaves the CPU to others should a stage spin.
     pub realtime_priority: Option<u8>,
+    /// Held for the run through the kernel's PM QoS request: no CPU enters
+    /// an idle state slower to leave than this, µs; none to let CPUs sleep
+    /// as deeply as they like. 0 keeps idle CPUs polling, so that a stage
+    /// woken by its input runs at once: on this virtual machine a halted
+    /// virtual CPU takes about 25 µs to wake, and the loop wakes at every
+    /// hop. Costs power on idle CPUs; needs root.
+    pub cpu_dma_latency_us: Option<u32>,
     /// What the live plant process does when the computer stalls.
     pub stall_policy: StallPolicy,
     /// How long, in periods, the paused plant waits for a command before it
@@ -111,6 +118,7 @@ impl Default for Timing {
             integration_rate_hz: 10_000.0,
             loop_cpu: None,
             realtime_priority: None,
+            cpu_dma_latency_us: None,
             stall_policy: StallPolicy::Pause,
             command_timeout_periods: 1.5,
         }

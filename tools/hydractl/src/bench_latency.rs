@@ -7,6 +7,7 @@
 
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -37,6 +38,10 @@ pub struct LatencyArgs {
     /// Run only this transport: iceoryx2, udp or calls.
     #[arg(long)]
     only: Option<String>,
+    /// The config whose stages, CPU, priority and idle latency are
+    /// measured (default: the simulated default).
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 /// A stage process of the benchmark (started by `bench latency`).
@@ -49,6 +54,8 @@ pub struct StageArgs {
     /// UDP: the port of the next hop.
     #[arg(long)]
     next_port: Option<u16>,
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 /// One stage's algorithm, applied to the benchmark sample.
@@ -134,7 +141,12 @@ struct Results {
     /// Per hop i (driver → stage 1, …, stage 5 → driver), ns.
     hops: [Vec<u64>; 6],
     misses: u64,
+    /// The slowest cycles, slowest first: end-to-end and per hop, ns. A
+    /// stall is told apart by the hop it happened in.
+    slowest: [(u64, [u64; 6]); SLOWEST_KEPT],
 }
+
+const SLOWEST_KEPT: usize = 3;
 
 impl Results {
     fn new(name: &'static str, capacity: usize) -> Self {
@@ -143,6 +155,7 @@ impl Results {
             total: Vec::with_capacity(capacity),
             hops: std::array::from_fn(|_| Vec::with_capacity(capacity)),
             misses: 0,
+            slowest: [(0, [0; 6]); SLOWEST_KEPT],
         }
     }
 
@@ -152,10 +165,16 @@ impl Results {
         if total > 1_000_000 {
             self.misses += 1;
         }
-        for i in 0..5 {
-            self.hops[i].push(s.stamps_ns[i + 1].saturating_sub(s.stamps_ns[i]));
+        let mut hops = [0; 6];
+        for (i, hop) in hops.iter_mut().enumerate() {
+            let end = s.stamps_ns.get(i + 1).copied().unwrap_or(received_ns);
+            *hop = end.saturating_sub(s.stamps_ns[i]);
+            self.hops[i].push(*hop);
         }
-        self.hops[5].push(received_ns.saturating_sub(s.stamps_ns[5]));
+        if let Some(rank) = self.slowest.iter().position(|(t, _)| total > *t) {
+            self.slowest[rank..].rotate_right(1);
+            self.slowest[rank] = (total, hops);
+        }
     }
 }
 
@@ -169,29 +188,48 @@ fn quantile_us(sorted: &[u64], q: f64) -> f64 {
 
 pub fn bench(args: LatencyArgs) -> Result<()> {
     quiet_ipc_logging();
-    let config = Config::default_sim()?;
+    let config = Config::load_or_default(args.config.as_deref())?;
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         eprintln!("{e}");
     }
+    // Held for the benchmark as `hydractl run` holds it for a run.
+    let _idle_latency = placement::limit_idle_latency(config.timing.cpu_dma_latency_us).unwrap_or_else(|e| {
+        eprintln!("{e}");
+        None
+    });
+    let stage_config = args.config.as_deref();
     let cycles = (args.duration * 1000.0).round() as u64;
     let want = |name: &str| args.only.as_deref().is_none_or(|only| only == name);
     let mut all = Vec::new();
     if want("iceoryx2") {
-        all.push(run_iceoryx2(&config, cycles)?);
+        all.push(run_iceoryx2(&config, stage_config, cycles)?);
     }
     if want("udp") {
-        all.push(run_udp(&config, cycles)?);
+        all.push(run_udp(&config, stage_config, cycles)?);
     }
     if want("calls") {
         all.push(run_calls(&config, cycles)?);
     }
-    report(&mut all, args.duration)
+    report(&mut all, args.duration, &config)
 }
 
-fn report(all: &mut [Results], duration: f64) -> Result<()> {
+fn report(all: &mut [Results], duration: f64, config: &Config) -> Result<()> {
+    let timing = &config.timing;
+    let placed = match timing.loop_cpu {
+        Some(cpu) => format!("loop on CPU {cpu}"),
+        None => "loop unpinned".to_owned(),
+    };
+    let priority = match timing.realtime_priority {
+        Some(p) => format!("SCHED_FIFO {p}"),
+        None => "normal priority".to_owned(),
+    };
+    let idle = match timing.cpu_dma_latency_us {
+        Some(us) => format!("CPU idle exit latency ≤ {us} µs"),
+        None => "CPU idle states unlimited".to_owned(),
+    };
     let mut text = format!(
-        "bench latency: sensor reading → valve command through 5 stages, 1 kHz, {duration} s per transport, loop pinned to one CPU\n\n{:<10} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
-        "transport", "p50 µs", "p99 µs", "p99.9 µs", "max µs", "misses >1ms"
+        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport; {placed}, {priority}, {idle}\n\n{:<10} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
+        timing.control_rate_hz, "transport", "p50 µs", "p99 µs", "p99.9 µs", "max µs", "misses >1ms"
     );
     for r in all.iter_mut() {
         r.total.sort_unstable();
@@ -232,15 +270,31 @@ fn report(all: &mut [Results], duration: f64) -> Result<()> {
             .collect();
         text += &format!("{:<10} {}\n", r.name, hops.join("  "));
     }
+    text += "\nslowest cycles, end-to-end = per hop µs:\n";
+    for r in all.iter() {
+        for (total, hops) in r.slowest.iter().filter(|(total, _)| *total > 0) {
+            let hops: Vec<String> = hops.iter().map(|h| format!("{:.1}", *h as f64 / 1000.0)).collect();
+            text += &format!("{:<10} {:.1} = {}\n", r.name, *total as f64 / 1000.0, hops.join(" + "));
+        }
+    }
     crate::emit(&text)
 }
 
-fn spawn_stage(index: usize, transport: &str, next_port: Option<u16>, scope: Option<&RunScope>) -> Result<Child> {
+fn spawn_stage(
+    index: usize,
+    transport: &str,
+    next_port: Option<u16>,
+    scope: Option<&RunScope>,
+    config: Option<&Path>,
+) -> Result<Child> {
     let mut command = Command::new(std::env::current_exe()?);
     command
         .args(["bench-stage", "--index", &index.to_string(), "--transport", transport])
         .stdin(Stdio::null())
         .stdout(Stdio::piped());
+    if let Some(config) = config {
+        command.arg("--config").arg(config);
+    }
     if let Some(port) = next_port {
         command.args(["--next-port", &port.to_string()]);
     }
@@ -274,7 +328,7 @@ impl Drop for StageProcesses {
     }
 }
 
-fn run_iceoryx2(config: &Config, cycles: u64) -> Result<Results> {
+fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Result<Results> {
     let scope = RunScope::new(&format!("hbench{}_", std::process::id() % 100_000))?;
     scope.remove_all_files()?;
     let result = (|| -> Result<Results> {
@@ -283,7 +337,9 @@ fn run_iceoryx2(config: &Config, cycles: u64) -> Result<Results> {
         let last: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[5], 4)?;
         let mut children = StageProcesses(Vec::new());
         for index in 0..5 {
-            children.0.push(spawn_stage(index, "iceoryx2", None, Some(&scope))?);
+            children
+                .0
+                .push(spawn_stage(index, "iceoryx2", None, Some(&scope), stage_config)?);
             if let Some(child) = children.0.last_mut() {
                 ready_line(child)?;
             }
@@ -308,14 +364,16 @@ fn run_iceoryx2(config: &Config, cycles: u64) -> Result<Results> {
     result
 }
 
-fn run_udp(config: &Config, cycles: u64) -> Result<Results> {
+fn run_udp(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Result<Results> {
     let back = UdpSocket::bind("127.0.0.1:0")?;
     back.set_read_timeout(Some(Duration::from_millis(50)))?;
     let mut next = back.local_addr()?.port();
     let mut children = StageProcesses(Vec::new());
     // Last stage first: each needs the next hop's port.
     for index in (0..5).rev() {
-        children.0.push(spawn_stage(index, "udp", Some(next), None)?);
+        children
+            .0
+            .push(spawn_stage(index, "udp", Some(next), None, stage_config)?);
         if let Some(child) = children.0.last_mut() {
             next = ready_line(child)?.parse().context("a UDP stage's port")?;
         }
@@ -388,7 +446,7 @@ fn drive(
 /// A stage process of the benchmark.
 pub fn stage(args: StageArgs) -> Result<()> {
     quiet_ipc_logging();
-    let config = Config::default_sim()?;
+    let config = Config::load_or_default(args.config.as_deref())?;
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         eprintln!("{e}");
     }

@@ -2,6 +2,7 @@
 
 mod bench_latency;
 mod bench_record;
+mod bench_stalls;
 mod control;
 mod ident;
 mod model;
@@ -149,6 +150,9 @@ enum BenchCommand {
     Latency(bench_latency::LatencyArgs),
     /// Sustained recording throughput against the mcap crate's raw write speed.
     Record(bench_record::RecordBenchArgs),
+    /// How long this computer takes the loop's CPU away from a process
+    /// nothing may preempt (SCHED_FIFO 99): the floor under any deadline.
+    Stalls(bench_stalls::StallsArgs),
 }
 
 /// Writes to stdout; a reader that closed the pipe early (`| head`) ends
@@ -181,6 +185,7 @@ fn main() -> Result<()> {
         Command::Bench(BenchCommand::Diagnose { durations, repeat }) => model::bench_diagnose(&durations, repeat),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
         Command::Bench(BenchCommand::Record(args)) => bench_record::bench(args),
+        Command::Bench(BenchCommand::Stalls(args)) => bench_stalls::bench(args),
         Command::BenchStage(args) => bench_latency::stage(args),
     }
 }

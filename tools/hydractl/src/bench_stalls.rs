@@ -1,0 +1,81 @@
+//! `hydractl bench stalls`: how long this computer takes a CPU away from a
+//! process that nothing in the operating system may preempt. A loop at
+//! SCHED_FIFO 99, pinned to the loop's CPU, only reads the clock; every
+//! gap between two readings is time the CPU was elsewhere: interrupts, or
+//! on a virtual machine the host running something else. A control loop
+//! cannot be steadier than this, whatever its transport.
+
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use hydractl_bus::{clock, placement};
+use hydractl_sim::Config;
+
+#[derive(clap::Args)]
+pub struct StallsArgs {
+    /// Seconds of spinning, in bursts.
+    #[arg(long, default_value_t = 60.0)]
+    duration: f64,
+    /// The CPU to watch (default: the config's loop CPU).
+    #[arg(long)]
+    cpu: Option<usize>,
+}
+
+/// A burst stays well inside the kernel's real-time budget (95% of each
+/// second): the CPU is given back between bursts, so the system's own
+/// work on it is not starved.
+const BURST: Duration = Duration::from_millis(400);
+const REST: Duration = Duration::from_millis(600);
+const WATCHED_NS: [u64; 3] = [100_000, 1_000_000, 10_000_000];
+
+pub fn bench(args: StallsArgs) -> Result<()> {
+    let config = Config::load_or_default(None)?;
+    let cpu = args.cpu.or(config.timing.loop_cpu);
+    let refusals = placement::enter_loop(cpu, Some(99));
+    if let Some(e) = refusals.first() {
+        // Preemptible, the loop would measure the system's other work.
+        return Err(anyhow::anyhow!("{e}")).context("bench stalls needs the CPU pinned at SCHED_FIFO 99");
+    }
+    let bursts = (args.duration / BURST.as_secs_f64()).ceil().max(1.0) as usize;
+    let mut over = [0u64; WATCHED_NS.len()];
+    let mut longest = Vec::with_capacity(bursts * 4);
+    let mut spun_ns = 0u64;
+    for _ in 0..bursts {
+        let start = clock::now_ns();
+        let end = start + BURST.as_nanos() as u64;
+        let mut last = start;
+        while last < end {
+            let now = clock::now_ns();
+            let gap = now - last;
+            last = now;
+            if gap >= WATCHED_NS[0] {
+                for (count, limit) in over.iter_mut().zip(WATCHED_NS) {
+                    *count += u64::from(gap >= limit);
+                }
+                longest.push(gap);
+            }
+        }
+        spun_ns += last - start;
+        std::thread::sleep(REST);
+    }
+    longest.sort_unstable_by(|a, b| b.cmp(a));
+    let top: Vec<String> = longest
+        .iter()
+        .take(5)
+        .map(|g| format!("{:.2}", *g as f64 / 1e6))
+        .collect();
+    let where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
+    crate::emit(&format!(
+        "bench stalls: {where_}, SCHED_FIFO 99, {:.1} s spun in {bursts} bursts\n\
+         gaps ≥ 0.1 ms: {}\ngaps ≥ 1 ms:   {}\ngaps ≥ 10 ms:  {}\nlongest, ms:   {}\n",
+        spun_ns as f64 / 1e9,
+        over[0],
+        over[1],
+        over[2],
+        if top.is_empty() {
+            "none".to_owned()
+        } else {
+            top.join(" ")
+        },
+    ))
+}
