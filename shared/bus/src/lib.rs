@@ -9,6 +9,7 @@ pub mod devices;
 mod outlet;
 pub mod placement;
 mod scope;
+pub mod semaphore_service;
 mod wait;
 
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};

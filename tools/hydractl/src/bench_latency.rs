@@ -12,6 +12,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use hydractl_bus::semaphore_service::{self, SemaphoreInlet, SemaphoreOutlet, SemaphoreWaker};
 use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, RunScope, PREFIX_ENV};
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
@@ -21,6 +22,7 @@ use hydractl_sim::stack::{
 use hydractl_sim::Config;
 
 const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
+const TRANSPORTS: [&str; 4] = ["iceoryx2", "iceoryx2-sem", "udp", "calls"];
 const SERVICES: [&str; 6] = [
     "hydractl/bench/0",
     "hydractl/bench/1",
@@ -35,7 +37,12 @@ pub struct LatencyArgs {
     /// Seconds per transport.
     #[arg(long, default_value_t = 10.0)]
     duration: f64,
-    /// Run only this transport: iceoryx2, udp or calls.
+    /// The transports take turns in this many rounds, each a share of the
+    /// duration, so that drifting machine noise falls on all alike.
+    #[arg(long, default_value_t = 5)]
+    rounds: usize,
+    /// Run only this transport: iceoryx2, iceoryx2-sem (iceoryx2 with
+    /// semaphore events), udp or calls.
     #[arg(long)]
     only: Option<String>,
     /// The config whose stages, CPU, priority and idle latency are
@@ -159,6 +166,25 @@ impl Results {
         }
     }
 
+    /// Adds another round's results of the same transport.
+    fn absorb(&mut self, round: Results) {
+        self.total.extend(round.total);
+        for (hops, more) in self.hops.iter_mut().zip(round.hops) {
+            hops.extend(more);
+        }
+        self.misses += round.misses;
+        for slow in round.slowest {
+            self.keep_if_slowest(slow.0, slow.1);
+        }
+    }
+
+    fn keep_if_slowest(&mut self, total: u64, hops: [u64; 6]) {
+        if let Some(rank) = self.slowest.iter().position(|(t, _)| total > *t) {
+            self.slowest[rank..].rotate_right(1);
+            self.slowest[rank] = (total, hops);
+        }
+    }
+
     fn record(&mut self, s: &BenchSample, received_ns: u64) {
         let total = received_ns.saturating_sub(s.stamps_ns[0]);
         self.total.push(total);
@@ -171,10 +197,7 @@ impl Results {
             *hop = end.saturating_sub(s.stamps_ns[i]);
             self.hops[i].push(*hop);
         }
-        if let Some(rank) = self.slowest.iter().position(|(t, _)| total > *t) {
-            self.slowest[rank..].rotate_right(1);
-            self.slowest[rank] = (total, hops);
-        }
+        self.keep_if_slowest(total, hops);
     }
 }
 
@@ -198,22 +221,43 @@ pub fn bench(args: LatencyArgs) -> Result<()> {
         None
     });
     let stage_config = args.config.as_deref();
-    let cycles = (args.duration * 1000.0).round() as u64;
-    let want = |name: &str| args.only.as_deref().is_none_or(|only| only == name);
-    let mut all = Vec::new();
-    if want("iceoryx2") {
-        all.push(run_iceoryx2(&config, stage_config, cycles)?);
+    let rounds = args.rounds.max(1);
+    let cycles_per_round = (args.duration * config.timing.control_rate_hz / rounds as f64)
+        .round()
+        .max(1.0) as u64;
+    let transports: Vec<&str> = TRANSPORTS
+        .into_iter()
+        .filter(|name| args.only.as_deref().is_none_or(|only| only == *name))
+        .collect();
+    if transports.is_empty() {
+        bail!(
+            "--only: no transport `{}`; one of {}",
+            args.only.unwrap_or_default(),
+            TRANSPORTS.join(", ")
+        );
     }
-    if want("udp") {
-        all.push(run_udp(&config, stage_config, cycles)?);
+    let mut all: Vec<Results> = transports
+        .iter()
+        .map(|name| Results::new(name, (cycles_per_round * rounds as u64) as usize))
+        .collect();
+    // The transports take turns, round by round: this machine's noise
+    // drifts over minutes, and one transport measured after another would
+    // be compared across different weather.
+    for _ in 0..rounds {
+        for (name, results) in transports.iter().zip(all.iter_mut()) {
+            let round = match *name {
+                "iceoryx2" => run_iceoryx2(&config, stage_config, cycles_per_round)?,
+                "iceoryx2-sem" => run_semaphore(&config, stage_config, cycles_per_round)?,
+                "udp" => run_udp(&config, stage_config, cycles_per_round)?,
+                _ => run_calls(&config, cycles_per_round)?,
+            };
+            results.absorb(round);
+        }
     }
-    if want("calls") {
-        all.push(run_calls(&config, cycles)?);
-    }
-    report(&mut all, args.duration, &config)
+    report(&mut all, args.duration, rounds, &config)
 }
 
-fn report(all: &mut [Results], duration: f64, config: &Config) -> Result<()> {
+fn report(all: &mut [Results], duration: f64, rounds: usize, config: &Config) -> Result<()> {
     let timing = &config.timing;
     let placed = match timing.loop_cpu {
         Some(cpu) => format!("loop on CPU {cpu}"),
@@ -228,13 +272,13 @@ fn report(all: &mut [Results], duration: f64, config: &Config) -> Result<()> {
         None => "CPU idle states unlimited".to_owned(),
     };
     let mut text = format!(
-        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport; {placed}, {priority}, {idle}\n\n{:<10} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
+        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport in {rounds} rounds taking turns; {placed}, {priority}, {idle}\n\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
         timing.control_rate_hz, "transport", "p50 µs", "p99 µs", "p99.9 µs", "max µs", "misses >1ms"
     );
     for r in all.iter_mut() {
         r.total.sort_unstable();
         text += &format!(
-            "{:<10} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>12}\n",
+            "{:<12} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>12}\n",
             r.name,
             quantile_us(&r.total, 0.5),
             quantile_us(&r.total, 0.99),
@@ -244,19 +288,15 @@ fn report(all: &mut [Results], duration: f64, config: &Config) -> Result<()> {
         );
     }
     let find = |name: &str| all.iter().find(|r| r.name == name);
-    if let (Some(iox), Some(udp)) = (find("iceoryx2"), find("udp")) {
-        text += &format!(
-            "\niceoryx2 / udp: p50 {:.2}, p99 {:.2}\n",
-            quantile_us(&iox.total, 0.5) / quantile_us(&udp.total, 0.5),
-            quantile_us(&iox.total, 0.99) / quantile_us(&udp.total, 0.99)
-        );
-    }
-    if let (Some(iox), Some(calls)) = (find("iceoryx2"), find("calls")) {
-        text += &format!(
-            "iceoryx2 / calls: p50 {:.1}, p99 {:.1}\n",
-            quantile_us(&iox.total, 0.5) / quantile_us(&calls.total, 0.5),
-            quantile_us(&iox.total, 0.99) / quantile_us(&calls.total, 0.99)
-        );
+    text += "\n";
+    for (over, under) in [("iceoryx2", "udp"), ("iceoryx2-sem", "udp"), ("iceoryx2", "calls")] {
+        if let (Some(a), Some(b)) = (find(over), find(under)) {
+            text += &format!(
+                "{over} / {under}: p50 {:.2}, p99 {:.2}\n",
+                quantile_us(&a.total, 0.5) / quantile_us(&b.total, 0.5),
+                quantile_us(&a.total, 0.99) / quantile_us(&b.total, 0.99)
+            );
+        }
     }
     text += "\nper hop, p50 / p99 µs (driver → sensor → friction → position → torque → valve → driver):\n";
     for r in all.iter_mut() {
@@ -268,13 +308,13 @@ fn report(all: &mut [Results], duration: f64, config: &Config) -> Result<()> {
                 format!("{:.1}/{:.1}", quantile_us(h, 0.5), quantile_us(h, 0.99))
             })
             .collect();
-        text += &format!("{:<10} {}\n", r.name, hops.join("  "));
+        text += &format!("{:<12} {}\n", r.name, hops.join("  "));
     }
     text += "\nslowest cycles, end-to-end = per hop µs:\n";
     for r in all.iter() {
         for (total, hops) in r.slowest.iter().filter(|(total, _)| *total > 0) {
             let hops: Vec<String> = hops.iter().map(|h| format!("{:.1}", *h as f64 / 1000.0)).collect();
-            text += &format!("{:<10} {:.1} = {}\n", r.name, *total as f64 / 1000.0, hops.join(" + "));
+            text += &format!("{:<12} {:.1} = {}\n", r.name, *total as f64 / 1000.0, hops.join(" + "));
         }
     }
     crate::emit(&text)
@@ -360,6 +400,77 @@ fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Re
         results
     })();
     let _ = scope.remove_dead_nodes();
+    scope.remove_all_files()?;
+    result
+}
+
+/// iceoryx2 with semaphore events: the driver sleeps in the semaphore's
+/// blocking wait, so a helper thread wakes it should a round trip never
+/// come back (its timed wait would poll).
+fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Result<Results> {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+    use std::sync::Arc;
+    const GIVE_UP: Duration = Duration::from_millis(50);
+    let scope = RunScope::new(&format!("hbsem{}_", std::process::id() % 100_000))?;
+    scope.remove_all_files()?;
+    let result = (|| -> Result<Results> {
+        let node = semaphore_service::open_node(&scope)?;
+        let first: SemaphoreOutlet<BenchSample> = SemaphoreOutlet::open(&node, SERVICES[0])?;
+        let last: SemaphoreInlet<BenchSample> = SemaphoreInlet::open(&node, SERVICES[5])?;
+        let mut children = StageProcesses(Vec::new());
+        for index in 0..5 {
+            children
+                .0
+                .push(spawn_stage(index, "iceoryx2-sem", None, Some(&scope), stage_config)?);
+            if let Some(child) = children.0.last_mut() {
+                ready_line(child)?;
+            }
+        }
+        let waiting_since_ns = Arc::new(AtomicU64::new(0));
+        let done = Arc::new(AtomicBool::new(false));
+        let watchdog = {
+            let (waiting_since_ns, done, scope) = (waiting_since_ns.clone(), done.clone(), scope.clone());
+            std::thread::spawn(move || -> Result<()> {
+                let node = semaphore_service::open_node(&scope)?;
+                let waker = SemaphoreWaker::open(&node, SERVICES[5])?;
+                while !done.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(10));
+                    let since = waiting_since_ns.load(Ordering::Relaxed);
+                    if since != 0 && clock::now_ns().saturating_sub(since) > GIVE_UP.as_nanos() as u64 {
+                        waker.wake()?;
+                    }
+                }
+                Ok(())
+            })
+        };
+        let results = drive(cycles, "iceoryx2-sem", config, |s| {
+            first.publish(*s)?;
+            let started = clock::now_ns();
+            waiting_since_ns.store(started, Ordering::Relaxed);
+            let answer = loop {
+                let mut answer = None;
+                while let Some(back) = last.next()? {
+                    if back.seq == s.seq {
+                        answer = Some(back);
+                    }
+                }
+                if answer.is_some() || clock::now_ns().saturating_sub(started) > GIVE_UP.as_nanos() as u64 {
+                    break answer;
+                }
+                last.wait()?;
+            };
+            waiting_since_ns.store(0, Ordering::Relaxed);
+            Ok(answer)
+        });
+        done.store(true, Ordering::Relaxed);
+        drop(children);
+        match watchdog.join() {
+            Ok(outcome) => outcome?,
+            Err(_) => anyhow::bail!("the benchmark's watchdog thread panicked"),
+        }
+        results
+    })();
+    // Semaphore nodes are not `ipc::Service` nodes: their files go by prefix.
     scope.remove_all_files()?;
     result
 }
@@ -473,6 +584,22 @@ pub fn stage(args: StageArgs) -> Result<()> {
             hydractl_bus::run_single(input.listener(), &bus, &mut on_input)?;
             failure.map_or(Ok(()), Err)
         }
+        "iceoryx2-sem" => {
+            let scope = RunScope::from_env()?;
+            let node = semaphore_service::open_node(&scope)?;
+            let input: SemaphoreInlet<BenchSample> = SemaphoreInlet::open(&node, SERVICES[args.index])?;
+            let output: SemaphoreOutlet<BenchSample> = SemaphoreOutlet::open(&node, SERVICES[args.index + 1])?;
+            crate::emit("ready\n")?;
+            // The benchmark kills its stages when it is done.
+            loop {
+                input.wait()?;
+                while let Some(mut s) = input.next()? {
+                    stage.apply(&mut s);
+                    s.stamps_ns[stamp] = clock::now_ns();
+                    output.publish(s)?;
+                }
+            }
+        }
         "udp" => {
             let socket = UdpSocket::bind("127.0.0.1:0")?;
             let next = args.next_port.context("--next-port is needed for udp")?;
@@ -496,6 +623,6 @@ pub fn stage(args: StageArgs) -> Result<()> {
                 socket.send(&s.to_bytes())?;
             }
         }
-        other => bail!("unknown transport `{other}`: iceoryx2 or udp"),
+        other => bail!("unknown transport `{other}`: iceoryx2, iceoryx2-sem or udp"),
     }
 }
