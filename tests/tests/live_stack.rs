@@ -151,14 +151,30 @@ fn ctrl_c_stops_everything_and_leaves_no_files() {
         assert!(observer.wait_healthy(100, Duration::from_secs(10)), "the loop starts");
     }
     assert!(scope.has_files());
+    // The default config keeps idle CPUs polling for the run (where the
+    // kernel lets the run ask: root).
+    let held_during_run = idle_latency_limit_us();
+    if let Some(limit) = held_during_run {
+        assert_eq!(limit, 0, "cpu_dma_latency_us = 0 is held while the loop runs");
+    }
     signal(run.id(), Signal::SIGINT);
     assert!(wait_exit(&mut run.0, Duration::from_secs(10)).success());
+    if let Some(limit) = idle_latency_limit_us().filter(|_| held_during_run.is_some()) {
+        assert!(limit > 0, "the idle latency request ends with the run");
+    }
     assert!(
         !scope.has_files(),
         "left: {:?} and {}",
         scope.shm_files(),
         scope.root().display()
     );
+}
+
+/// The kernel's present limit on CPU idle exit latency, µs, when this
+/// process may read it.
+fn idle_latency_limit_us() -> Option<i32> {
+    let bytes = std::fs::read("/dev/cpu_dma_latency").ok()?;
+    Some(i32::from_ne_bytes(bytes.get(..4)?.try_into().ok()?))
 }
 
 #[test]
