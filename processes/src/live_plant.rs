@@ -20,9 +20,11 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use hydractl_bus::{clock, Inlet, Outlet, Reader};
+use hydractl_bus::{clock, Inlet, Outlet, PublisherWatch, Reader};
 use hydractl_plant::{Plant, SensorModel};
-use hydractl_samples::{service, source, Handover, PlantReading, SensorSample, ValveSample};
+use hydractl_samples::{
+    service, source, FrictionSample, Handover, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
+};
 use hydractl_sim::{build_plant, StallPolicy};
 
 use crate::handover::{PlantSeat, SeatChange};
@@ -103,6 +105,13 @@ pub fn run(kind: PlantKind) -> Result<()> {
     let mut loop_running = false;
     let mut last_measured: Option<PlantReading> = None;
     let mut last_velocity = 0.0;
+    // A fresh simulated plant in charge waits for the chain, so that its
+    // first reading is answered, as in the offline simulation, where the
+    // controllers are there from t = 0. A restarted plant finds the chain
+    // running; a machine waits for no one.
+    if kind == PlantKind::Simulation && started.args.resume.is_none() && seat.in_charge() {
+        wait_for_chain(bus)?;
+    }
     let mut next_tick = Instant::now();
     started.enter_realtime();
     loop {
@@ -217,6 +226,46 @@ pub fn run(kind: PlantKind) -> Result<()> {
         seq += 1;
     }
     Ok(())
+}
+
+/// How long a fresh plant waits for the chain before it starts anyway (the
+/// supervisor reports whichever stage did not come up).
+const CHAIN_START_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Waits until every stage of the chain publishes (each opens its input
+/// before its output, so its input is there too), or the timeout passes.
+fn wait_for_chain(bus: &hydractl_bus::Bus) -> Result<()> {
+    let started = Instant::now();
+    let mut sensor = PublisherWatch::<SensorSample>::new(service::SENSOR);
+    let mut friction = PublisherWatch::<FrictionSample>::new(service::FRICTION);
+    let mut position = PublisherWatch::<PositionSample>::new(service::POSITION);
+    let mut torque = PublisherWatch::<TorqueSample>::new(service::TORQUE);
+    let mut valve = PublisherWatch::<ValveSample>::new(service::VALVE);
+    loop {
+        let mut missing = Vec::new();
+        for (name, publishers) in [
+            (service::SENSOR, sensor.publishers(bus)),
+            (service::FRICTION, friction.publishers(bus)),
+            (service::POSITION, position.publishers(bus)),
+            (service::TORQUE, torque.publishers(bus)),
+            (service::VALVE, valve.publishers(bus)),
+        ] {
+            if publishers == 0 {
+                missing.push(name);
+            }
+        }
+        if missing.is_empty() || bus.termination_requested() {
+            return Ok(());
+        }
+        if started.elapsed() >= CHAIN_START_TIMEOUT {
+            eprintln!(
+                "plant: after {CHAIN_START_TIMEOUT:?} nothing publishes on {}; starting without them",
+                missing.join(", ")
+            );
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }
 
 /// The sensors' reading of the plant's present state, as published.

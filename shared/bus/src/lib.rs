@@ -13,7 +13,7 @@ pub mod semaphore_service;
 mod wait;
 
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
-pub use outlet::{Inlet, Outlet, Reader};
+pub use outlet::{Inlet, Outlet, PublisherWatch, Reader};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{guarded, run_loop, run_single, Flow, LoopExit, Wake};
 

@@ -50,6 +50,52 @@ fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
     Ok((data, event))
 }
 
+/// Counts the publishers of a service without adding a port and without
+/// creating the service: for a process that, at start-up, waits for the
+/// ones it depends on. Opening a service that is not there would create
+/// it, and dropping that handle remove it again, under the feet of the
+/// process that is creating it.
+pub struct PublisherWatch<T: ZeroCopySend + Debug + Copy + 'static> {
+    name: String,
+    service: Option<DataService<T>>,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> PublisherWatch<T> {
+    pub fn new(name: &str) -> Self {
+        Self {
+            name: name.to_owned(),
+            service: None,
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The publishers now; 0 while the service does not exist or cannot be
+    /// opened yet (its creator may be half-way).
+    pub fn publishers(&mut self, bus: &Bus) -> usize {
+        use iceoryx2::service::port_factory::PortFactory;
+        if self.service.is_none() {
+            self.service = ServiceName::new(&self.name).ok().and_then(|service_name| {
+                bus.node()
+                    .service_builder(&service_name)
+                    .publish_subscribe::<T>()
+                    .subscriber_max_buffer_size(MAX_BUFFER)
+                    .max_subscribers(MAX_SUBSCRIBERS)
+                    .max_publishers(MAX_PUBLISHERS)
+                    .max_nodes(MAX_NODES)
+                    .history_size(1)
+                    .open()
+                    .ok()
+            });
+        }
+        self.service
+            .as_ref()
+            .map_or(0, |service| service.dynamic_config().number_of_publishers())
+    }
+}
+
 /// Publishes samples of one service and wakes its listeners.
 pub struct Outlet<T: ZeroCopySend + Debug + Copy + 'static> {
     name: String,
