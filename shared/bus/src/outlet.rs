@@ -20,20 +20,27 @@ const MAX_NODES: usize = 32;
 type DataService<T> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
 type EventService = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
 
-fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
+/// The publish-subscribe service `name` with the one QoS every opener uses.
+fn data_service<T: ZeroCopySend + Debug + Copy + 'static>(
     bus: &Bus,
-    name: &str,
-) -> Result<(DataService<T>, EventService), BusError> {
-    let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
-    let data = bus
-        .node()
-        .service_builder(&service_name)
+    service_name: &ServiceName,
+) -> iceoryx2::service::builder::publish_subscribe::Builder<T, (), ipc::Service> {
+    bus.node()
+        .service_builder(service_name)
         .publish_subscribe::<T>()
         .subscriber_max_buffer_size(MAX_BUFFER)
         .max_subscribers(MAX_SUBSCRIBERS)
         .max_publishers(MAX_PUBLISHERS)
         .max_nodes(MAX_NODES)
         .history_size(1)
+}
+
+fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
+    bus: &Bus,
+    name: &str,
+) -> Result<(DataService<T>, EventService), BusError> {
+    let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
+    let data = data_service::<T>(bus, &service_name)
         .open_or_create()
         .map_err(|e| BusError::ipc(format!("opening {name}"), e))?;
     let event = bus
@@ -68,27 +75,14 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> PublisherWatch<T> {
         }
     }
 
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
     /// The publishers now; 0 while the service does not exist or cannot be
     /// opened yet (its creator may be half-way).
     pub fn publishers(&mut self, bus: &Bus) -> usize {
         use iceoryx2::service::port_factory::PortFactory;
         if self.service.is_none() {
-            self.service = ServiceName::new(&self.name).ok().and_then(|service_name| {
-                bus.node()
-                    .service_builder(&service_name)
-                    .publish_subscribe::<T>()
-                    .subscriber_max_buffer_size(MAX_BUFFER)
-                    .max_subscribers(MAX_SUBSCRIBERS)
-                    .max_publishers(MAX_PUBLISHERS)
-                    .max_nodes(MAX_NODES)
-                    .history_size(1)
-                    .open()
-                    .ok()
-            });
+            self.service = ServiceName::new(&self.name)
+                .ok()
+                .and_then(|service_name| data_service::<T>(bus, &service_name).open().ok());
         }
         self.service
             .as_ref()
