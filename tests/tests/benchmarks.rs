@@ -30,6 +30,8 @@ fn bench_latency_reports_every_transport_and_leaves_no_files() {
         assert!(figures.windows(2).take(3).all(|w| w[0] <= w[1]), "{row}");
     }
     assert!(out.contains("iceoryx2 / udp: p50"), "{out}");
+    // As deployed: the recorder, the supervisor and the monitor read every service.
+    assert!(out.contains("3 observers per service"), "{out}");
     assert!(out.contains("slowest cycles"), "{out}");
     // The benchmark's runs are prefixed with its pid.
     let ours = |name: &str| {
@@ -49,4 +51,15 @@ fn bench_latency_reports_every_transport_and_leaves_no_files() {
             .unwrap_or_default();
         assert!(left.is_empty(), "left in {dir}: {left:?}");
     }
+}
+
+#[test]
+fn bench_latency_refuses_more_observers_than_a_service_takes() {
+    let output = hydractl()
+        .args(["bench", "latency", "--observers", "9"])
+        .output()
+        .expect("running hydractl bench latency");
+    assert!(!output.status.success());
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(err.contains("--observers 9"), "{err}");
 }

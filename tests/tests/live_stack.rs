@@ -145,12 +145,23 @@ fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
 fn ctrl_c_stops_everything_and_leaves_no_files() {
     let _turn = serial();
     let scope = unique_scope("ctrlc");
+    let interrupts_before = interrupt_affinities();
     let mut run = start_run(&scope, &[]);
     {
         let observer = Observer::open(&scope);
         assert!(observer.wait_healthy(100, Duration::from_secs(10)), "the loop starts");
     }
     assert!(scope.has_files());
+    // The default config steers device interrupts off the loop's CPU (1)
+    // for the run, and puts them back after.
+    for (irq, during) in interrupt_affinities() {
+        if interrupts_before.get(&irq).is_some_and(|before| *before != during) {
+            assert!(
+                !cpu_list_has(&during, 1),
+                "IRQ {irq} moved, but onto the loop's CPU: {during}"
+            );
+        }
+    }
     // The default config keeps idle CPUs polling for the run (where the
     // kernel lets the run ask: root).
     let held_during_run = idle_latency_limit_us();
@@ -162,12 +173,36 @@ fn ctrl_c_stops_everything_and_leaves_no_files() {
     if let Some(limit) = idle_latency_limit_us().filter(|_| held_during_run.is_some()) {
         assert!(limit > 0, "the idle latency request ends with the run");
     }
+    assert_eq!(interrupt_affinities(), interrupts_before, "interrupts are put back");
     assert!(
         !scope.has_files(),
         "left: {:?} and {}",
         scope.shm_files(),
         scope.root().display()
     );
+}
+
+/// Every device interrupt's CPU list, by number.
+fn interrupt_affinities() -> std::collections::BTreeMap<String, String> {
+    std::fs::read_dir("/proc/irq")
+        .map(|entries| {
+            entries
+                .filter_map(Result::ok)
+                .filter_map(|e| {
+                    let list = std::fs::read_to_string(e.path().join("smp_affinity_list")).ok()?;
+                    Some((e.file_name().to_string_lossy().into_owned(), list.trim().to_owned()))
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Whether a kernel CPU list such as `0-3,6` holds `cpu`.
+fn cpu_list_has(list: &str, cpu: usize) -> bool {
+    list.split(',').any(|part| match part.split_once('-') {
+        Some((a, b)) => matches!((a.parse::<usize>(), b.parse::<usize>()), (Ok(a), Ok(b)) if (a..=b).contains(&cpu)),
+        None => part.parse() == Ok(cpu),
+    })
 }
 
 /// The kernel's present limit on CPU idle exit latency, µs, when this

@@ -90,12 +90,17 @@ fn main() -> Result<()> {
     let started = hydractl_processes::start("supervisor")?;
     let scope = started.bus.scope().clone();
     let policy = started.config.supervisor.clone();
-    // For the whole run: the loop's stages wake at every hop.
-    let _idle_latency = hydractl_bus::placement::limit_idle_latency(started.config.timing.cpu_dma_latency_us)
-        .unwrap_or_else(|e| {
-            eprintln!("supervisor: {e}");
-            None
-        });
+    // For the whole run: the loop's stages wake at every hop, and nothing
+    // but the loop should take its CPU.
+    let timing = &started.config.timing;
+    let (_reservation, refusals) = hydractl_bus::placement::reserve_for_run(
+        timing.loop_cpu,
+        timing.cpu_dma_latency_us,
+        timing.interrupts_off_loop_cpu,
+    );
+    for e in refusals {
+        eprintln!("supervisor: {e}");
+    }
     // Over what a crashed run left: its dead nodes (its files, when nothing
     // of it was alive, `hydractl run` removed before starting us).
     scope.remove_dead_nodes()?;

@@ -83,6 +83,152 @@ pub fn limit_idle_latency(max_us: Option<u32>) -> Result<Option<IdleLatencyLimit
         .map_err(|source| PlacementError::IdleLatency { max_us, source })
 }
 
+/// Where the kernel lists device interrupts, one folder each.
+const IRQ_DIR: &str = "/proc/irq";
+
+/// Device interrupts steered off the loop's CPU for the run: each one's
+/// affinity as it was and as written. Dropping this puts back every one
+/// still as written (another run that steered after this one finds them
+/// already off the CPU and changes nothing).
+#[derive(Debug)]
+pub struct SteeredInterrupts {
+    moved: Vec<MovedInterrupt>,
+    /// Interrupts the kernel would not move (managed ones, whose affinity
+    /// the kernel itself spreads over the CPUs).
+    pub kept_by_kernel: usize,
+}
+
+#[derive(Debug)]
+struct MovedInterrupt {
+    affinity_file: std::path::PathBuf,
+    was: String,
+    written: String,
+}
+
+impl SteeredInterrupts {
+    pub fn moved(&self) -> usize {
+        self.moved.len()
+    }
+}
+
+impl Drop for SteeredInterrupts {
+    fn drop(&mut self) {
+        for irq in &self.moved {
+            let unchanged = std::fs::read_to_string(&irq.affinity_file).is_ok_and(|now| now.trim() == irq.written);
+            if unchanged {
+                // Nothing to do with a failure here but leave the
+                // interrupt where it is, off the loop's CPU.
+                let _ = std::fs::write(&irq.affinity_file, &irq.was);
+            }
+        }
+    }
+}
+
+/// Moves every device interrupt that may run on `loop_cpu` to the other
+/// CPUs it may run on, for as long as the returned value lives. An
+/// interrupt's handler, and the softirq work that follows it, preempt even
+/// a SCHED_FIFO stage: on this virtual machine, with the virtio devices'
+/// interrupts free to land on the loop's CPU, a spinning SCHED_FIFO 99
+/// loop there lost the CPU for 1 ms or more 9–10 times a minute, and 0–1
+/// times with them moved (`hydractl bench stalls`). The permanent way on a
+/// vehicle computer is the kernel's `irqaffinity=` and `isolcpus=`; this
+/// is for a computer set up without them. Needs root; like pinning, a
+/// failure leaves the run going, for the caller to report.
+pub fn steer_interrupts_off(loop_cpu: Option<usize>) -> Result<Option<SteeredInterrupts>, PlacementError> {
+    let Some(cpu) = loop_cpu else { return Ok(None) };
+    let refused = |source| PlacementError::Interrupts { cpu, source };
+    let mut steered = SteeredInterrupts {
+        moved: Vec::new(),
+        kept_by_kernel: 0,
+    };
+    let mut irqs: Vec<std::path::PathBuf> = std::fs::read_dir(IRQ_DIR)
+        .map_err(refused)?
+        .filter_map(Result::ok)
+        .filter(|entry| entry.file_name().to_string_lossy().bytes().all(|b| b.is_ascii_digit()))
+        .map(|entry| entry.path().join("smp_affinity_list"))
+        .collect();
+    irqs.sort();
+    for affinity_file in irqs {
+        let Ok(was) = std::fs::read_to_string(&affinity_file) else {
+            continue;
+        };
+        let was = was.trim().to_owned();
+        let Some(cpus) = parse_cpu_list(&was) else { continue };
+        let others: Vec<usize> = cpus.iter().copied().filter(|&c| c != cpu).collect();
+        if others.len() == cpus.len() || others.is_empty() {
+            continue;
+        }
+        let written = format_cpu_list(&others);
+        match std::fs::write(&affinity_file, &written) {
+            Ok(()) => steered.moved.push(MovedInterrupt {
+                affinity_file,
+                was,
+                written,
+            }),
+            // Not root: the file will not open for writing.
+            Err(e) if e.raw_os_error() == Some(nix::errno::Errno::EACCES as i32) => return Err(refused(e)),
+            // EPERM or EIO: a managed interrupt, placed by the kernel.
+            Err(_) => steered.kept_by_kernel += 1,
+        }
+    }
+    Ok(Some(steered))
+}
+
+/// The CPUs of a kernel CPU list such as `0-3,6`; `None` if it is not one.
+fn parse_cpu_list(list: &str) -> Option<Vec<usize>> {
+    let mut cpus = Vec::new();
+    for part in list.split(',').filter(|p| !p.is_empty()) {
+        match part.split_once('-') {
+            Some((first, last)) => cpus.extend(first.parse::<usize>().ok()?..=last.parse().ok()?),
+            None => cpus.push(part.parse().ok()?),
+        }
+    }
+    (!cpus.is_empty()).then_some(cpus)
+}
+
+fn format_cpu_list(cpus: &[usize]) -> String {
+    cpus.iter().map(usize::to_string).collect::<Vec<_>>().join(",")
+}
+
+/// What a run holds for its loop while it lasts: the idle-latency request
+/// and the interrupts steered off the loop's CPU. Dropping it gives both
+/// back.
+#[derive(Debug)]
+pub struct RunReservation {
+    _idle_latency: Option<IdleLatencyLimit>,
+    pub interrupts: Option<SteeredInterrupts>,
+}
+
+/// Takes what the config asks of the computer for a run (`hydractl run`'s
+/// supervisor, and the latency benchmark alike); every failure is returned,
+/// none stops it.
+pub fn reserve_for_run(
+    loop_cpu: Option<usize>,
+    cpu_dma_latency_us: Option<u32>,
+    interrupts_off_loop_cpu: bool,
+) -> (RunReservation, Vec<PlacementError>) {
+    let mut refusals = Vec::new();
+    let idle_latency = limit_idle_latency(cpu_dma_latency_us).unwrap_or_else(|e| {
+        refusals.push(e);
+        None
+    });
+    let interrupts = if interrupts_off_loop_cpu {
+        steer_interrupts_off(loop_cpu).unwrap_or_else(|e| {
+            refusals.push(e);
+            None
+        })
+    } else {
+        None
+    };
+    (
+        RunReservation {
+            _idle_latency: idle_latency,
+            interrupts,
+        },
+        refusals,
+    )
+}
+
 /// Pins this loop process and raises its priority as `loop_cpu` and
 /// `realtime_priority` say; every failure is returned, none stops it.
 pub fn enter_loop(loop_cpu: Option<usize>, realtime_priority: Option<u8>) -> Vec<PlacementError> {
@@ -100,6 +246,8 @@ pub enum PlacementError {
     Priority { priority: u8, source: nix::Error },
     #[error("cannot hold {CPU_DMA_LATENCY} at {max_us} µs (needs root): {source}; idle CPUs may sleep deeply and wake slowly")]
     IdleLatency { max_us: u32, source: std::io::Error },
+    #[error("cannot steer device interrupts off CPU {cpu} through {IRQ_DIR} (needs root): {source}; their handlers may delay the loop")]
+    Interrupts { cpu: usize, source: std::io::Error },
 }
 
 fn pin(fill: impl FnOnce(&mut CpuSet) -> nix::Result<()>, what: String) -> Result<(), PlacementError> {
@@ -112,6 +260,21 @@ fn pin(fill: impl FnOnce(&mut CpuSet) -> nix::Result<()>, what: String) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cpu_lists_read_and_write_as_the_kernel_does() {
+        assert_eq!(parse_cpu_list("0-1"), Some(vec![0, 1]));
+        assert_eq!(parse_cpu_list("0,2-4,7"), Some(vec![0, 2, 3, 4, 7]));
+        assert_eq!(parse_cpu_list("3"), Some(vec![3]));
+        assert_eq!(parse_cpu_list(""), None);
+        assert_eq!(parse_cpu_list("0-x"), None);
+        assert_eq!(format_cpu_list(&[0, 2, 3]), "0,2,3");
+    }
+
+    #[test]
+    fn no_loop_cpu_steers_no_interrupt() {
+        assert!(matches!(steer_interrupts_off(None), Ok(None)));
+    }
 
     #[test]
     fn no_idle_latency_limit_asks_nothing_of_the_kernel() {

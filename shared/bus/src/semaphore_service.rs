@@ -66,6 +66,10 @@ pub fn open_node(scope: &RunScope) -> Result<Node<SemaphoreIpc>, BusError> {
         .map_err(|e| BusError::ipc("creating a node with semaphore events", e))
 }
 
+/// The next stage and up to [`MAX_OBSERVERS`] readers that only look.
+const MAX_SUBSCRIBERS: usize = MAX_OBSERVERS + 1;
+pub const MAX_OBSERVERS: usize = 8;
+
 fn open_data<T: ZeroCopySend + Debug + Copy + 'static>(
     node: &Node<SemaphoreIpc>,
     name: &str,
@@ -75,6 +79,7 @@ fn open_data<T: ZeroCopySend + Debug + Copy + 'static>(
         .publish_subscribe::<T>()
         .history_size(1)
         .subscriber_max_buffer_size(4)
+        .max_subscribers(MAX_SUBSCRIBERS)
         .open_or_create()
         .map_err(|e| BusError::ipc(format!("opening {name}"), e))
 }
@@ -143,13 +148,13 @@ impl SemaphoreWaker {
     }
 }
 
-/// Receives samples and sleeps on the semaphore until one is notified.
-pub struct SemaphoreInlet<T: ZeroCopySend + Debug + Copy + 'static> {
+/// Receives samples by polling, with no listener: publishers do not wake
+/// it, as [`crate::Reader`].
+pub struct SemaphoreReader<T: ZeroCopySend + Debug + Copy + 'static> {
     subscriber: Subscriber<SemaphoreIpc, T, ()>,
-    listener: Listener<SemaphoreIpc>,
 }
 
-impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreInlet<T> {
+impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreReader<T> {
     pub fn open(node: &Node<SemaphoreIpc>, name: &str) -> Result<Self, BusError> {
         Ok(Self {
             subscriber: open_data::<T>(node, name)?
@@ -157,6 +162,27 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreInlet<T> {
                 .buffer_size(4)
                 .create()
                 .map_err(|e| BusError::ipc(format!("subscriber on {name}"), e))?,
+        })
+    }
+
+    pub fn next(&self) -> Result<Option<T>, BusError> {
+        self.subscriber
+            .receive()
+            .map(|sample| sample.map(|s| *s.payload()))
+            .map_err(|e| BusError::ipc("receive with semaphore events", e))
+    }
+}
+
+/// Receives samples and sleeps on the semaphore until one is notified.
+pub struct SemaphoreInlet<T: ZeroCopySend + Debug + Copy + 'static> {
+    reader: SemaphoreReader<T>,
+    listener: Listener<SemaphoreIpc>,
+}
+
+impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreInlet<T> {
+    pub fn open(node: &Node<SemaphoreIpc>, name: &str) -> Result<Self, BusError> {
+        Ok(Self {
+            reader: SemaphoreReader::open(node, name)?,
             listener: open_event(node, name)?
                 .listener_builder()
                 .create()
@@ -173,9 +199,6 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreInlet<T> {
     }
 
     pub fn next(&self) -> Result<Option<T>, BusError> {
-        self.subscriber
-            .receive()
-            .map(|sample| sample.map(|s| *s.payload()))
-            .map_err(|e| BusError::ipc("receive with semaphore events", e))
+        self.reader.next()
     }
 }

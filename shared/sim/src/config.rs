@@ -93,6 +93,9 @@ pub struct Timing {
     /// virtual CPU takes about 25 µs to wake, and the loop wakes at every
     /// hop. Costs power on idle CPUs; needs root.
     pub cpu_dma_latency_us: Option<u32>,
+    /// Move device interrupts off `loop_cpu` for the run: their handlers
+    /// preempt even a real-time stage. Needs root and a `loop_cpu`.
+    pub interrupts_off_loop_cpu: bool,
     /// What the live plant process does when the computer stalls.
     pub stall_policy: StallPolicy,
     /// How long, in periods, the paused plant waits for a command before it
@@ -119,6 +122,7 @@ impl Default for Timing {
             loop_cpu: None,
             realtime_priority: None,
             cpu_dma_latency_us: None,
+            interrupts_off_loop_cpu: false,
             stall_policy: StallPolicy::Pause,
             command_timeout_periods: 1.5,
         }
@@ -538,6 +542,12 @@ impl Config {
                 ),
             });
         }
+        if t.interrupts_off_loop_cpu && t.loop_cpu.is_none() {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: "interrupts_off_loop_cpu needs a loop_cpu to steer them off".to_owned(),
+            });
+        }
         if let Some(priority) = t.realtime_priority.filter(|p| !(1..=98).contains(p)) {
             return Err(ConfigError::Timing {
                 path: path.to_owned(),
@@ -716,6 +726,10 @@ mod tests {
         let bad = format!("{DEFAULT_SIM_TOML}\n[effects.dedzone]\n");
         let err = Config::parse(&bad, Path::new("x.toml")).expect_err("unknown effect");
         assert!(err.to_string().contains("deadzone"), "lists the valid names: {err}");
+
+        let bad = DEFAULT_SIM_TOML.replace("loop_cpu = 1 ", "# no loop CPU ");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("interrupts off no CPU");
+        assert!(err.to_string().contains("interrupts_off_loop_cpu"), "{err}");
 
         let bad = DEFAULT_SIM_TOML.replace("realtime_priority = 50", "realtime_priority = 99");
         let err = Config::parse(&bad, Path::new("x.toml")).expect_err("the kernel's priority");

@@ -4,6 +4,8 @@
 //! processes over UDP loopback sockets, and as plain function calls in one
 //! process (the floor). A driver stands in for the plant: it sends one
 //! reading per millisecond and times its way back from the valve stage.
+//! Every service also has `--observers` readers that only look, as the
+//! live stack's recorder, supervisor and monitor do.
 
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
@@ -12,8 +14,10 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hydractl_bus::semaphore_service::{self, SemaphoreInlet, SemaphoreOutlet, SemaphoreWaker};
-use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, RunScope, PREFIX_ENV};
+use hydractl_bus::semaphore_service::{
+    self, SemaphoreInlet, SemaphoreOutlet, SemaphoreReader, SemaphoreWaker, MAX_OBSERVERS,
+};
+use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, Reader, RunScope, PREFIX_ENV};
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
 use hydractl_sim::stack::{
@@ -49,6 +53,12 @@ pub struct LatencyArgs {
     /// measured (default: the simulated default).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Readers of every service besides the next stage, that only look:
+    /// in the live stack the recorder, the supervisor and `hydractl run`'s
+    /// monitor read every sample (3). Over iceoryx2 a sample is written
+    /// once for all; over UDP each reader costs its own datagram.
+    #[arg(long, default_value_t = 3)]
+    observers: usize,
 }
 
 /// A stage process of the benchmark (started by `bench latency`).
@@ -61,6 +71,9 @@ pub struct StageArgs {
     /// UDP: the port of the next hop.
     #[arg(long)]
     next_port: Option<u16>,
+    /// UDP: the observers' ports, each sent every output too.
+    #[arg(long, value_delimiter = ',')]
+    observer_ports: Vec<u16>,
     #[arg(long)]
     config: Option<PathBuf>,
 }
@@ -210,16 +223,27 @@ fn quantile_us(sorted: &[u64], q: f64) -> f64 {
 }
 
 pub fn bench(args: LatencyArgs) -> Result<()> {
+    if args.observers > MAX_OBSERVERS {
+        bail!(
+            "--observers {}: a service takes at most {MAX_OBSERVERS}",
+            args.observers
+        );
+    }
     quiet_ipc_logging();
     let config = Config::load_or_default(args.config.as_deref())?;
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         eprintln!("{e}");
     }
-    // Held for the benchmark as `hydractl run` holds it for a run.
-    let _idle_latency = placement::limit_idle_latency(config.timing.cpu_dma_latency_us).unwrap_or_else(|e| {
+    // Held for the benchmark as `hydractl run` holds them for a run.
+    let timing = &config.timing;
+    let (reservation, refusals) = placement::reserve_for_run(
+        timing.loop_cpu,
+        timing.cpu_dma_latency_us,
+        timing.interrupts_off_loop_cpu,
+    );
+    for e in refusals {
         eprintln!("{e}");
-        None
-    });
+    }
     let stage_config = args.config.as_deref();
     let rounds = args.rounds.max(1);
     let cycles_per_round = (args.duration * config.timing.control_rate_hz / rounds as f64)
@@ -246,18 +270,26 @@ pub fn bench(args: LatencyArgs) -> Result<()> {
     for _ in 0..rounds {
         for (name, results) in transports.iter().zip(all.iter_mut()) {
             let round = match *name {
-                "iceoryx2" => run_iceoryx2(&config, stage_config, cycles_per_round)?,
-                "iceoryx2-sem" => run_semaphore(&config, stage_config, cycles_per_round)?,
-                "udp" => run_udp(&config, stage_config, cycles_per_round)?,
+                "iceoryx2" => run_iceoryx2(&config, stage_config, cycles_per_round, args.observers)?,
+                "iceoryx2-sem" => run_semaphore(&config, stage_config, cycles_per_round, args.observers)?,
+                "udp" => run_udp(&config, stage_config, cycles_per_round, args.observers)?,
                 _ => run_calls(&config, cycles_per_round)?,
             };
             results.absorb(round);
         }
     }
-    report(&mut all, args.duration, rounds, &config)
+    let steered = reservation.interrupts.as_ref().map(|i| (i.moved(), i.kept_by_kernel));
+    report(&mut all, args.duration, rounds, args.observers, steered, &config)
 }
 
-fn report(all: &mut [Results], duration: f64, rounds: usize, config: &Config) -> Result<()> {
+fn report(
+    all: &mut [Results],
+    duration: f64,
+    rounds: usize,
+    observers: usize,
+    steered: Option<(usize, usize)>,
+    config: &Config,
+) -> Result<()> {
     let timing = &config.timing;
     let placed = match timing.loop_cpu {
         Some(cpu) => format!("loop on CPU {cpu}"),
@@ -271,8 +303,12 @@ fn report(all: &mut [Results], duration: f64, rounds: usize, config: &Config) ->
         Some(us) => format!("CPU idle exit latency ≤ {us} µs"),
         None => "CPU idle states unlimited".to_owned(),
     };
+    let interrupts = match steered {
+        Some((moved, kept)) => format!(", {moved} device interrupts steered off it ({kept} kept there by the kernel)"),
+        None => String::new(),
+    };
     let mut text = format!(
-        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport in {rounds} rounds taking turns; {placed}, {priority}, {idle}\n\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
+        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport in {rounds} rounds taking turns; {observers} observers per service; {placed}{interrupts}, {priority}, {idle}\n\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
         timing.control_rate_hz, "transport", "p50 µs", "p99 µs", "p99.9 µs", "max µs", "misses >1ms"
     );
     for r in all.iter_mut() {
@@ -323,7 +359,7 @@ fn report(all: &mut [Results], duration: f64, rounds: usize, config: &Config) ->
 fn spawn_stage(
     index: usize,
     transport: &str,
-    next_port: Option<u16>,
+    udp_ports: Option<(u16, &[u16])>,
     scope: Option<&RunScope>,
     config: Option<&Path>,
 ) -> Result<Child> {
@@ -335,13 +371,25 @@ fn spawn_stage(
     if let Some(config) = config {
         command.arg("--config").arg(config);
     }
-    if let Some(port) = next_port {
-        command.args(["--next-port", &port.to_string()]);
+    if let Some((next, observers)) = udp_ports {
+        command.args(["--next-port", &next.to_string()]);
+        if !observers.is_empty() {
+            let ports: Vec<String> = observers.iter().map(u16::to_string).collect();
+            command.args(["--observer-ports", &ports.join(",")]);
+        }
     }
     if let Some(scope) = scope {
         command.env(PREFIX_ENV, scope.prefix());
     }
     command.spawn().context("starting a bench stage")
+}
+
+/// Loopback addresses of `ports`, resolved once, off the timed path.
+fn udp_addresses(ports: &[u16]) -> Vec<std::net::SocketAddr> {
+    ports
+        .iter()
+        .map(|port| std::net::SocketAddr::from(([127, 0, 0, 1], *port)))
+        .collect()
 }
 
 /// Waits for a stage's "ready" line (UDP stages print their port on it).
@@ -368,13 +416,16 @@ impl Drop for StageProcesses {
     }
 }
 
-fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Result<Results> {
+fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64, observers: usize) -> Result<Results> {
     let scope = RunScope::new(&format!("hbench{}_", std::process::id() % 100_000))?;
     scope.remove_all_files()?;
     let result = (|| -> Result<Results> {
         let bus = Bus::open(&scope, "bench-driver")?;
         let first: Outlet<BenchSample> = Outlet::open(&bus, SERVICES[0])?;
         let last: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[5], 4)?;
+        let observers = (0..observers)
+            .flat_map(|_| SERVICES.map(|name| Reader::<BenchSample>::open(&bus, name, 4)))
+            .collect::<Result<Vec<_>, _>>()?;
         let mut children = StageProcesses(Vec::new());
         for index in 0..5 {
             children
@@ -384,18 +435,29 @@ fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Re
                 ready_line(child)?;
             }
         }
-        let results = drive(cycles, "iceoryx2", config, |s| {
-            first.publish(*s)?;
-            let deadline = Instant::now() + Duration::from_millis(50);
-            while Instant::now() < deadline {
-                if let Some(back) = last.wait_latest(deadline.saturating_duration_since(Instant::now()))? {
-                    if back.seq == s.seq {
-                        return Ok(Some(back));
+        let results = drive(
+            cycles,
+            "iceoryx2",
+            config,
+            |s| {
+                first.publish(*s)?;
+                let deadline = Instant::now() + Duration::from_millis(50);
+                while Instant::now() < deadline {
+                    if let Some(back) = last.wait_latest(deadline.saturating_duration_since(Instant::now()))? {
+                        if back.seq == s.seq {
+                            return Ok(Some(back));
+                        }
                     }
                 }
-            }
-            Ok(None)
-        });
+                Ok(None)
+            },
+            || {
+                for observer in &observers {
+                    observer.latest()?;
+                }
+                Ok(())
+            },
+        );
         drop(children);
         results
     })();
@@ -407,7 +469,7 @@ fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Re
 /// iceoryx2 with semaphore events: the driver sleeps in the semaphore's
 /// blocking wait, so a helper thread wakes it should a round trip never
 /// come back (its timed wait would poll).
-fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Result<Results> {
+fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64, observers: usize) -> Result<Results> {
     use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
     use std::sync::Arc;
     const GIVE_UP: Duration = Duration::from_millis(50);
@@ -417,6 +479,9 @@ fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64) -> R
         let node = semaphore_service::open_node(&scope)?;
         let first: SemaphoreOutlet<BenchSample> = SemaphoreOutlet::open(&node, SERVICES[0])?;
         let last: SemaphoreInlet<BenchSample> = SemaphoreInlet::open(&node, SERVICES[5])?;
+        let observers = (0..observers)
+            .flat_map(|_| SERVICES.map(|name| SemaphoreReader::<BenchSample>::open(&node, name)))
+            .collect::<Result<Vec<_>, _>>()?;
         let mut children = StageProcesses(Vec::new());
         for index in 0..5 {
             children
@@ -443,25 +508,36 @@ fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64) -> R
                 Ok(())
             })
         };
-        let results = drive(cycles, "iceoryx2-sem", config, |s| {
-            first.publish(*s)?;
-            let started = clock::now_ns();
-            waiting_since_ns.store(started, Ordering::Relaxed);
-            let answer = loop {
-                let mut answer = None;
-                while let Some(back) = last.next()? {
-                    if back.seq == s.seq {
-                        answer = Some(back);
+        let results = drive(
+            cycles,
+            "iceoryx2-sem",
+            config,
+            |s| {
+                first.publish(*s)?;
+                let started = clock::now_ns();
+                waiting_since_ns.store(started, Ordering::Relaxed);
+                let answer = loop {
+                    let mut answer = None;
+                    while let Some(back) = last.next()? {
+                        if back.seq == s.seq {
+                            answer = Some(back);
+                        }
                     }
+                    if answer.is_some() || clock::now_ns().saturating_sub(started) > GIVE_UP.as_nanos() as u64 {
+                        break answer;
+                    }
+                    last.wait()?;
+                };
+                waiting_since_ns.store(0, Ordering::Relaxed);
+                Ok(answer)
+            },
+            || {
+                for observer in &observers {
+                    while observer.next()?.is_some() {}
                 }
-                if answer.is_some() || clock::now_ns().saturating_sub(started) > GIVE_UP.as_nanos() as u64 {
-                    break answer;
-                }
-                last.wait()?;
-            };
-            waiting_since_ns.store(0, Ordering::Relaxed);
-            Ok(answer)
-        });
+                Ok(())
+            },
+        );
         done.store(true, Ordering::Relaxed);
         drop(children);
         match watchdog.join() {
@@ -475,67 +551,114 @@ fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64) -> R
     result
 }
 
-fn run_udp(config: &Config, stage_config: Option<&Path>, cycles: u64) -> Result<Results> {
+fn run_udp(config: &Config, stage_config: Option<&Path>, cycles: u64, observers: usize) -> Result<Results> {
     let back = UdpSocket::bind("127.0.0.1:0")?;
     back.set_read_timeout(Some(Duration::from_millis(50)))?;
     let mut next = back.local_addr()?.port();
+    let observers = (0..observers)
+        .map(|_| -> Result<UdpSocket> {
+            let socket = UdpSocket::bind("127.0.0.1:0")?;
+            socket.set_nonblocking(true)?;
+            Ok(socket)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let observer_ports = observers
+        .iter()
+        .map(|socket| Ok(socket.local_addr()?.port()))
+        .collect::<Result<Vec<u16>>>()?;
     let mut children = StageProcesses(Vec::new());
     // Last stage first: each needs the next hop's port.
     for index in (0..5).rev() {
-        children
-            .0
-            .push(spawn_stage(index, "udp", Some(next), None, stage_config)?);
+        children.0.push(spawn_stage(
+            index,
+            "udp",
+            Some((next, &observer_ports)),
+            None,
+            stage_config,
+        )?);
         if let Some(child) = children.0.last_mut() {
             next = ready_line(child)?.parse().context("a UDP stage's port")?;
         }
     }
     let out = UdpSocket::bind("127.0.0.1:0")?;
     out.connect(("127.0.0.1", next))?;
-    let results = drive(cycles, "udp", config, |s| {
-        out.send(&s.to_bytes())?;
-        let mut buf = [0u8; BenchSample::WIRE_SIZE];
-        loop {
-            match back.recv(&mut buf) {
-                Ok(n) if n == BenchSample::WIRE_SIZE => {
-                    let sample = BenchSample::from_bytes(&buf);
-                    if sample.seq == s.seq {
-                        return Ok(Some(sample));
+    let observer_addresses = udp_addresses(&observer_ports);
+    let results = drive(
+        cycles,
+        "udp",
+        config,
+        |s| {
+            let bytes = s.to_bytes();
+            out.send(&bytes)?;
+            for observer in &observer_addresses {
+                out.send_to(&bytes, observer)?;
+            }
+            let mut buf = [0u8; BenchSample::WIRE_SIZE];
+            loop {
+                match back.recv(&mut buf) {
+                    Ok(n) if n == BenchSample::WIRE_SIZE => {
+                        let sample = BenchSample::from_bytes(&buf);
+                        if sample.seq == s.seq {
+                            return Ok(Some(sample));
+                        }
+                    }
+                    Ok(_) => {}
+                    Err(_) => return Ok(None),
+                }
+            }
+        },
+        || {
+            let mut buf = [0u8; BenchSample::WIRE_SIZE];
+            for observer in &observers {
+                loop {
+                    match observer.recv(&mut buf) {
+                        Ok(_) => {}
+                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                        Err(e) => return Err(e.into()),
                     }
                 }
-                Ok(_) => {}
-                Err(_) => return Ok(None),
             }
-        }
-    });
+            Ok(())
+        },
+    );
     drop(children);
     results
 }
 
 fn run_calls(config: &Config, cycles: u64) -> Result<Results> {
     let mut stages: Vec<Stage> = (0..5).map(|i| Stage::new(i, config)).collect::<Result<_>>()?;
-    drive(cycles, "calls", config, |s| {
-        let mut sample = *s;
-        for (i, stage) in stages.iter_mut().enumerate() {
-            stage.apply(&mut sample);
-            sample.stamps_ns[i + 1] = clock::now_ns();
-        }
-        Ok(Some(sample))
-    })
+    drive(
+        cycles,
+        "calls",
+        config,
+        |s| {
+            let mut sample = *s;
+            for (i, stage) in stages.iter_mut().enumerate() {
+                stage.apply(&mut sample);
+                sample.stamps_ns[i + 1] = clock::now_ns();
+            }
+            Ok(Some(sample))
+        },
+        || Ok(()),
+    )
 }
 
 /// Sends one reading per millisecond (paced, as the plant does) and records
-/// each answer's latency.
+/// each answer's latency; `between_cycles` (the observers' reading) runs
+/// once a cycle is timed, as the live stack's observers read on other CPUs.
 fn drive(
     cycles: u64,
     name: &'static str,
     config: &Config,
     mut round_trip: impl FnMut(&BenchSample) -> Result<Option<BenchSample>>,
+    mut between_cycles: impl FnMut() -> Result<()>,
 ) -> Result<Results> {
     let period = Duration::from_secs_f64(config.timing.control_period());
     let mut results = Results::new(name, cycles as usize);
     // Let every stage open its ports and settle.
     for seq in 0..200 {
         round_trip(&reading(seq))?;
+        between_cycles()?;
         std::thread::sleep(period);
     }
     let mut next = Instant::now();
@@ -547,6 +670,7 @@ fn drive(
             Some(back) => results.record(&back, clock::now_ns()),
             None => results.misses += 1,
         }
+        between_cycles()?;
         if Instant::now() > next + period * 10 {
             next = Instant::now();
         }
@@ -560,6 +684,9 @@ pub fn stage(args: StageArgs) -> Result<()> {
     let config = Config::load_or_default(args.config.as_deref())?;
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         eprintln!("{e}");
+    }
+    if std::env::var("PROTO_PRIO_ASC").is_ok() {
+        let _ = placement::run_realtime(Some(51 + args.index as u8));
     }
     let mut stage = Stage::new(args.index, &config)?;
     let stamp = args.index + 1;
@@ -604,6 +731,7 @@ pub fn stage(args: StageArgs) -> Result<()> {
             let socket = UdpSocket::bind("127.0.0.1:0")?;
             let next = args.next_port.context("--next-port is needed for udp")?;
             socket.connect(("127.0.0.1", next))?;
+            let observers = udp_addresses(&args.observer_ports);
             let input = UdpSocket::bind("127.0.0.1:0")?;
             crate::emit(&format!("{}\n", input.local_addr()?.port()))?;
             let mut buf = [0u8; BenchSample::WIRE_SIZE];
@@ -620,7 +748,11 @@ pub fn stage(args: StageArgs) -> Result<()> {
                 let mut s = BenchSample::from_bytes(&buf);
                 stage.apply(&mut s);
                 s.stamps_ns[stamp] = clock::now_ns();
-                socket.send(&s.to_bytes())?;
+                let bytes = s.to_bytes();
+                socket.send(&bytes)?;
+                for observer in &observers {
+                    socket.send_to(&bytes, observer)?;
+                }
             }
         }
         other => bail!("unknown transport `{other}`: iceoryx2, iceoryx2-sem or udp"),

@@ -3,7 +3,10 @@
 //! SCHED_FIFO 99, pinned to the loop's CPU, only reads the clock; every
 //! gap between two readings is time the CPU was elsewhere: interrupts, or
 //! on a virtual machine the host running something else. A control loop
-//! cannot be steadier than this, whatever its transport.
+//! cannot be steadier than this, whatever its transport. Beside the gaps
+//! it prints the steal time the kernel was told of meanwhile (the host's
+//! own account of running something else on that CPU): when the two agree,
+//! the gaps are the host's.
 
 use std::time::Duration;
 
@@ -27,6 +30,8 @@ pub struct StallsArgs {
 const BURST: Duration = Duration::from_millis(400);
 const REST: Duration = Duration::from_millis(600);
 const WATCHED_NS: [u64; 3] = [100_000, 1_000_000, 10_000_000];
+/// A gap this long is time taken away; a clock reading takes about 30 ns.
+const TAKEN_NS: u64 = 10_000;
 
 pub fn bench(args: StallsArgs) -> Result<()> {
     let config = Config::load_or_default(None)?;
@@ -40,7 +45,10 @@ pub fn bench(args: StallsArgs) -> Result<()> {
     let mut over = [0u64; WATCHED_NS.len()];
     let mut longest = Vec::with_capacity(bursts * 4);
     let mut spun_ns = 0u64;
+    let mut taken_ns = 0u64;
+    let mut stolen_ns = Some(0u64);
     for _ in 0..bursts {
+        let steal_before = steal_ns(cpu);
         let start = clock::now_ns();
         let end = start + BURST.as_nanos() as u64;
         let mut last = start;
@@ -48,6 +56,9 @@ pub fn bench(args: StallsArgs) -> Result<()> {
             let now = clock::now_ns();
             let gap = now - last;
             last = now;
+            if gap >= TAKEN_NS {
+                taken_ns += gap;
+            }
             if gap >= WATCHED_NS[0] {
                 for (count, limit) in over.iter_mut().zip(WATCHED_NS) {
                     *count += u64::from(gap >= limit);
@@ -56,6 +67,10 @@ pub fn bench(args: StallsArgs) -> Result<()> {
             }
         }
         spun_ns += last - start;
+        stolen_ns = match (stolen_ns, steal_before, steal_ns(cpu)) {
+            (Some(sum), Some(before), Some(after)) => Some(sum + after.saturating_sub(before)),
+            _ => None,
+        };
         std::thread::sleep(REST);
     }
     longest.sort_unstable_by(|a, b| b.cmp(a));
@@ -67,7 +82,9 @@ pub fn bench(args: StallsArgs) -> Result<()> {
     let where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     crate::emit(&format!(
         "bench stalls: {where_}, SCHED_FIFO 99, {:.1} s spun in {bursts} bursts\n\
-         gaps ≥ 0.1 ms: {}\ngaps ≥ 1 ms:   {}\ngaps ≥ 10 ms:  {}\nlongest, ms:   {}\n",
+         gaps ≥ 0.1 ms: {}\ngaps ≥ 1 ms:   {}\ngaps ≥ 10 ms:  {}\nlongest, ms:   {}\n\
+         taken away:    {:.1} ms in gaps ≥ 10 µs\n\
+         steal time:    {} (the host's account, /proc/stat, in 10 ms ticks)\n",
         spun_ns as f64 / 1e9,
         over[0],
         over[1],
@@ -77,5 +94,41 @@ pub fn bench(args: StallsArgs) -> Result<()> {
         } else {
             top.join(" ")
         },
+        taken_ns as f64 / 1e6,
+        stolen_ns.map_or("not reported by this kernel".to_owned(), |ns| format!(
+            "{:.0} ms",
+            ns as f64 / 1e6
+        )),
     ))
+}
+
+/// The steal time the kernel has accounted to `cpu` (all CPUs when
+/// unpinned) since boot, from `/proc/stat`; `None` where it is not there.
+fn steal_ns(cpu: Option<usize>) -> Option<u64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let label = cpu.map_or("cpu".to_owned(), |c| format!("cpu{c}"));
+    let ticks_per_s = nix::unistd::sysconf(nix::unistd::SysconfVar::CLK_TCK).ok()??;
+    stat.lines()
+        .find_map(|line| line.split_whitespace().next().filter(|l| *l == label).map(|_| line))
+        .and_then(steal_ticks)
+        .map(|ticks| ticks * 1_000_000_000 / ticks_per_s.max(1) as u64)
+}
+
+/// The steal field (the eighth number) of a `/proc/stat` CPU line.
+fn steal_ticks(line: &str) -> Option<u64> {
+    line.split_whitespace().nth(8)?.parse().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn steal_is_the_eighth_figure_of_a_cpu_line() {
+        assert_eq!(
+            steal_ticks("cpu1 2892539 0 176171 2328298 28979 0 5413 986 0 0"),
+            Some(986)
+        );
+        assert_eq!(steal_ticks("cpu1 1 2 3"), None);
+    }
 }
