@@ -146,6 +146,7 @@ fn ctrl_c_stops_everything_and_leaves_no_files() {
     let _turn = serial();
     let scope = unique_scope("ctrlc");
     let interrupts_before = interrupt_affinities();
+    let interrupts_to_put_back = put_back_as_recorded(interrupts_before.clone());
     let mut run = start_run(&scope, &[]);
     {
         let observer = Observer::open(&scope);
@@ -173,7 +174,15 @@ fn ctrl_c_stops_everything_and_leaves_no_files() {
     if let Some(limit) = idle_latency_limit_us().filter(|_| held_during_run.is_some()) {
         assert!(limit > 0, "the idle latency request ends with the run");
     }
-    assert_eq!(interrupt_affinities(), interrupts_before, "interrupts are put back");
+    assert_eq!(
+        interrupt_affinities(),
+        interrupts_to_put_back,
+        "interrupts are put back"
+    );
+    assert!(
+        !std::path::Path::new(INTERRUPTS_RECORD).exists(),
+        "the record goes with the run"
+    );
     assert!(
         !scope.has_files(),
         "left: {:?} and {}",
@@ -195,6 +204,23 @@ fn interrupt_affinities() -> std::collections::BTreeMap<String, String> {
                 .collect()
         })
         .unwrap_or_default()
+}
+
+const INTERRUPTS_RECORD: &str = "/run/hydractl-interrupts";
+
+/// `now`, with the affinities that a killed run recorded and left steered.
+fn put_back_as_recorded(
+    mut now: std::collections::BTreeMap<String, String>,
+) -> std::collections::BTreeMap<String, String> {
+    let recorded = std::fs::read_to_string(INTERRUPTS_RECORD).unwrap_or_default();
+    for line in recorded.lines() {
+        if let Some((irq, list)) = line.split_once(' ') {
+            if let Some(affinity) = now.get_mut(irq) {
+                *affinity = list.trim().to_owned();
+            }
+        }
+    }
+    now
 }
 
 /// Whether a kernel CPU list such as `0-3,6` holds `cpu`.

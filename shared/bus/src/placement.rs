@@ -86,21 +86,27 @@ pub fn limit_idle_latency(max_us: Option<u32>) -> Result<Option<IdleLatencyLimit
 /// Where the kernel lists device interrupts, one folder each.
 const IRQ_DIR: &str = "/proc/irq";
 
+/// The affinities the interrupts had before a run steered them, kept until
+/// the run puts them back. In `/run`, which a reboot empties as it resets
+/// the affinities, so that a run killed before it could put them back
+/// leaves the next run what to put back.
+pub const INTERRUPTS_RECORD: &str = "/run/hydractl-interrupts";
+
 /// Device interrupts steered off the loop's CPU for the run: each one's
 /// affinity as it was and as written. Dropping this puts back every one
-/// still as written (another run that steered after this one finds them
-/// already off the CPU and changes nothing).
+/// still as written, and removes [`INTERRUPTS_RECORD`].
 #[derive(Debug)]
 pub struct SteeredInterrupts {
     moved: Vec<MovedInterrupt>,
     /// Interrupts the kernel would not move (managed ones, whose affinity
     /// the kernel itself spreads over the CPUs).
     pub kept_by_kernel: usize,
+    record: std::path::PathBuf,
 }
 
 #[derive(Debug)]
 struct MovedInterrupt {
-    affinity_file: std::path::PathBuf,
+    irq: String,
     was: String,
     written: String,
 }
@@ -114,14 +120,20 @@ impl SteeredInterrupts {
 impl Drop for SteeredInterrupts {
     fn drop(&mut self) {
         for irq in &self.moved {
-            let unchanged = std::fs::read_to_string(&irq.affinity_file).is_ok_and(|now| now.trim() == irq.written);
+            let file = affinity_file(&irq.irq);
+            let unchanged = std::fs::read_to_string(&file).is_ok_and(|now| now.trim() == irq.written);
             if unchanged {
                 // Nothing to do with a failure here but leave the
                 // interrupt where it is, off the loop's CPU.
-                let _ = std::fs::write(&irq.affinity_file, &irq.was);
+                let _ = std::fs::write(&file, &irq.was);
             }
         }
+        let _ = std::fs::remove_file(&self.record);
     }
+}
+
+fn affinity_file(irq: &str) -> std::path::PathBuf {
+    std::path::Path::new(IRQ_DIR).join(irq).join("smp_affinity_list")
 }
 
 /// Moves every device interrupt that may run on `loop_cpu` to the other
@@ -135,36 +147,66 @@ impl Drop for SteeredInterrupts {
 /// is for a computer set up without them. Needs root; like pinning, a
 /// failure leaves the run going, for the caller to report.
 pub fn steer_interrupts_off(loop_cpu: Option<usize>) -> Result<Option<SteeredInterrupts>, PlacementError> {
+    steer_interrupts_recorded_in(loop_cpu, std::path::Path::new(INTERRUPTS_RECORD))
+}
+
+fn steer_interrupts_recorded_in(
+    loop_cpu: Option<usize>,
+    record: &std::path::Path,
+) -> Result<Option<SteeredInterrupts>, PlacementError> {
     let Some(cpu) = loop_cpu else { return Ok(None) };
     let refused = |source| PlacementError::Interrupts { cpu, source };
-    let mut steered = SteeredInterrupts {
-        moved: Vec::new(),
-        kept_by_kernel: 0,
+    // A run that was killed left its record: those are the affinities to
+    // put back, not the steered ones it left.
+    let recorded = match std::fs::read_to_string(record) {
+        Ok(text) => parse_record(&text).map_err(|line| PlacementError::InterruptsRecord {
+            path: record.to_owned(),
+            line,
+        })?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+        Err(e) => return Err(refused(e)),
     };
-    let mut irqs: Vec<std::path::PathBuf> = std::fs::read_dir(IRQ_DIR)
+    let mut irqs: Vec<String> = std::fs::read_dir(IRQ_DIR)
         .map_err(refused)?
         .filter_map(Result::ok)
-        .filter(|entry| entry.file_name().to_string_lossy().bytes().all(|b| b.is_ascii_digit()))
-        .map(|entry| entry.path().join("smp_affinity_list"))
+        .map(|entry| entry.file_name().to_string_lossy().into_owned())
+        .filter(|name| name.bytes().all(|b| b.is_ascii_digit()))
         .collect();
     irqs.sort();
-    for affinity_file in irqs {
-        let Ok(was) = std::fs::read_to_string(&affinity_file) else {
+    let mut plan = Vec::new();
+    for irq in irqs {
+        let Ok(now) = std::fs::read_to_string(affinity_file(&irq)) else {
             continue;
         };
-        let was = was.trim().to_owned();
+        let now = now.trim().to_owned();
+        let was = recorded
+            .iter()
+            .find(|(recorded_irq, _)| *recorded_irq == irq)
+            .map_or(now.clone(), |(_, was)| was.clone());
         let Some(cpus) = parse_cpu_list(&was) else { continue };
         let others: Vec<usize> = cpus.iter().copied().filter(|&c| c != cpu).collect();
         if others.len() == cpus.len() || others.is_empty() {
             continue;
         }
-        let written = format_cpu_list(&others);
-        match std::fs::write(&affinity_file, &written) {
-            Ok(()) => steered.moved.push(MovedInterrupt {
-                affinity_file,
-                was,
-                written,
-            }),
+        plan.push((irq, was, now, format_cpu_list(&others)));
+    }
+    // The record first: should this process die half-way, the next run
+    // still knows what to put back.
+    let text: String = plan.iter().map(|(irq, was, _, _)| format!("{irq} {was}\n")).collect();
+    std::fs::write(record, text).map_err(refused)?;
+    let mut steered = SteeredInterrupts {
+        moved: Vec::new(),
+        kept_by_kernel: 0,
+        record: record.to_owned(),
+    };
+    for (irq, was, now, written) in plan {
+        let outcome = if now == written {
+            Ok(())
+        } else {
+            std::fs::write(affinity_file(&irq), &written)
+        };
+        match outcome {
+            Ok(()) => steered.moved.push(MovedInterrupt { irq, was, written }),
             // Not root: the file will not open for writing.
             Err(e) if e.raw_os_error() == Some(nix::errno::Errno::EACCES as i32) => return Err(refused(e)),
             // EPERM or EIO: a managed interrupt, placed by the kernel.
@@ -172,6 +214,26 @@ pub fn steer_interrupts_off(loop_cpu: Option<usize>) -> Result<Option<SteeredInt
         }
     }
     Ok(Some(steered))
+}
+
+/// The lines `IRQ CPU-LIST` of an interrupts record; the number of the
+/// first line that is not one.
+fn parse_record(text: &str) -> Result<Vec<(String, String)>, usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, line)| !line.trim().is_empty())
+        .map(|(i, line)| {
+            let mut fields = line.split_whitespace();
+            match (fields.next(), fields.next(), fields.next()) {
+                (Some(irq), Some(list), None)
+                    if irq.bytes().all(|b| b.is_ascii_digit()) && parse_cpu_list(list).is_some() =>
+                {
+                    Ok((irq.to_owned(), list.to_owned()))
+                }
+                _ => Err(i + 1),
+            }
+        })
+        .collect()
 }
 
 /// The CPUs of a kernel CPU list such as `0-3,6`; `None` if it is not one.
@@ -248,6 +310,8 @@ pub enum PlacementError {
     IdleLatency { max_us: u32, source: std::io::Error },
     #[error("cannot steer device interrupts off CPU {cpu} through {IRQ_DIR} (needs root): {source}; their handlers may delay the loop")]
     Interrupts { cpu: usize, source: std::io::Error },
+    #[error("{path}, line {line}: not `IRQ CPU-LIST`; interrupts left where they are (remove the file once they are where they belong)")]
+    InterruptsRecord { path: std::path::PathBuf, line: usize },
 }
 
 fn pin(fill: impl FnOnce(&mut CpuSet) -> nix::Result<()>, what: String) -> Result<(), PlacementError> {
@@ -269,6 +333,33 @@ mod tests {
         assert_eq!(parse_cpu_list(""), None);
         assert_eq!(parse_cpu_list("0-x"), None);
         assert_eq!(format_cpu_list(&[0, 2, 3]), "0,2,3");
+    }
+
+    #[test]
+    fn an_interrupts_record_reads_back_or_names_its_bad_line() {
+        assert_eq!(
+            parse_record("24 0-1\n36 0,1\n"),
+            Ok(vec![
+                ("24".to_owned(), "0-1".to_owned()),
+                ("36".to_owned(), "0,1".to_owned())
+            ])
+        );
+        assert_eq!(parse_record(""), Ok(vec![]));
+        assert_eq!(parse_record("24 0-1\n25 x\n"), Err(2));
+        assert_eq!(parse_record("24 0-1 7\n"), Err(1));
+    }
+
+    #[test]
+    fn a_bad_interrupts_record_is_an_error_naming_it() {
+        let record = std::env::temp_dir().join(format!("hydractl-interrupts-test-{}", std::process::id()));
+        std::fs::write(&record, "24 0-1\nnonsense\n").expect("writing the record");
+        let e = steer_interrupts_recorded_in(Some(1), &record).expect_err("a bad record");
+        std::fs::remove_file(&record).ok();
+        let text = e.to_string();
+        assert!(
+            text.contains("hydractl-interrupts-test") && text.contains("line 2"),
+            "{text}"
+        );
     }
 
     #[test]

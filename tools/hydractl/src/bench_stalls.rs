@@ -22,6 +22,10 @@ pub struct StallsArgs {
     /// The CPU to watch (default: the config's loop CPU).
     #[arg(long)]
     cpu: Option<usize>,
+    /// The config whose loop CPU is watched, with its interrupts steered
+    /// off it as a run steers them (default: the simulated default).
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
 }
 
 /// A burst stays well inside the kernel's real-time budget (95% of each
@@ -34,8 +38,15 @@ const WATCHED_NS: [u64; 3] = [100_000, 1_000_000, 10_000_000];
 const TAKEN_NS: u64 = 10_000;
 
 pub fn bench(args: StallsArgs) -> Result<()> {
-    let config = Config::load_or_default(None)?;
+    let config = Config::load_or_default(args.config.as_deref())?;
     let cpu = args.cpu.or(config.timing.loop_cpu);
+    // The computer as a run sees it.
+    let timing = &config.timing;
+    let (reservation, refusals) =
+        placement::reserve_for_run(cpu, timing.cpu_dma_latency_us, timing.interrupts_off_loop_cpu);
+    for e in refusals {
+        eprintln!("{e}");
+    }
     let refusals = placement::enter_loop(cpu, Some(99));
     if let Some(e) = refusals.first() {
         // Preemptible, the loop would measure the system's other work.
@@ -79,7 +90,14 @@ pub fn bench(args: StallsArgs) -> Result<()> {
         .take(5)
         .map(|g| format!("{:.2}", *g as f64 / 1e6))
         .collect();
-    let where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
+    let mut where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
+    if let Some(steered) = &reservation.interrupts {
+        where_ += &format!(
+            " ({} device interrupts steered off it, {} kept there by the kernel)",
+            steered.moved(),
+            steered.kept_by_kernel
+        );
+    }
     crate::emit(&format!(
         "bench stalls: {where_}, SCHED_FIFO 99, {:.1} s spun in {bursts} bursts\n\
          gaps ≥ 0.1 ms: {}\ngaps ≥ 1 ms:   {}\ngaps ≥ 10 ms:  {}\nlongest, ms:   {}\n\
