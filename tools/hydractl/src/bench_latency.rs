@@ -25,6 +25,8 @@ use hydractl_sim::stack::{
 };
 use hydractl_sim::Config;
 
+use crate::slowest::Slowest;
+
 const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
 const TRANSPORTS: [&str; 4] = ["iceoryx2", "iceoryx2-sem", "udp", "calls"];
 const SERVICES: [&str; 6] = [
@@ -163,10 +165,8 @@ struct Results {
     misses: u64,
     /// The slowest cycles, slowest first: end-to-end and per hop, ns. A
     /// stall is told apart by the hop it happened in.
-    slowest: [(u64, [u64; 6]); SLOWEST_KEPT],
+    slowest: Slowest<[u64; 6], 3>,
 }
-
-const SLOWEST_KEPT: usize = 3;
 
 impl Results {
     fn new(name: &'static str, capacity: usize) -> Self {
@@ -175,7 +175,7 @@ impl Results {
             total: Vec::with_capacity(capacity),
             hops: std::array::from_fn(|_| Vec::with_capacity(capacity)),
             misses: 0,
-            slowest: [(0, [0; 6]); SLOWEST_KEPT],
+            slowest: Slowest::default(),
         }
     }
 
@@ -186,15 +186,8 @@ impl Results {
             hops.extend(more);
         }
         self.misses += round.misses;
-        for slow in round.slowest {
-            self.keep_if_slowest(slow.0, slow.1);
-        }
-    }
-
-    fn keep_if_slowest(&mut self, total: u64, hops: [u64; 6]) {
-        if let Some(rank) = self.slowest.iter().position(|(t, _)| total > *t) {
-            self.slowest[rank..].rotate_right(1);
-            self.slowest[rank] = (total, hops);
+        for (total, hops) in round.slowest.iter() {
+            self.slowest.keep(*total, *hops);
         }
     }
 
@@ -210,7 +203,7 @@ impl Results {
             *hop = end.saturating_sub(s.stamps_ns[i]);
             self.hops[i].push(*hop);
         }
-        self.keep_if_slowest(total, hops);
+        self.slowest.keep(total, hops);
     }
 }
 
@@ -348,7 +341,7 @@ fn report(
     }
     text += "\nslowest cycles, end-to-end = per hop µs:\n";
     for r in all.iter() {
-        for (total, hops) in r.slowest.iter().filter(|(total, _)| *total > 0) {
+        for (total, hops) in r.slowest.iter() {
             let hops: Vec<String> = hops.iter().map(|h| format!("{:.1}", *h as f64 / 1000.0)).collect();
             text += &format!("{:<12} {:.1} = {}\n", r.name, *total as f64 / 1000.0, hops.join(" + "));
         }
@@ -407,6 +400,23 @@ fn ready_line(child: &mut Child) -> Result<String> {
 /// return never leaves one running.
 struct StageProcesses(Vec<Child>);
 
+impl StageProcesses {
+    /// Starts the five stages over a shared-memory `transport` in `scope`,
+    /// each ready (its ports open) before the next starts.
+    fn start_in(scope: &RunScope, transport: &str, stage_config: Option<&Path>) -> Result<Self> {
+        let mut children = StageProcesses(Vec::new());
+        for index in 0..5 {
+            children
+                .0
+                .push(spawn_stage(index, transport, None, Some(scope), stage_config)?);
+            if let Some(child) = children.0.last_mut() {
+                ready_line(child)?;
+            }
+        }
+        Ok(children)
+    }
+}
+
 impl Drop for StageProcesses {
     fn drop(&mut self) {
         for child in self.0.iter_mut() {
@@ -426,15 +436,7 @@ fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64, obser
         let observers = (0..observers)
             .flat_map(|_| SERVICES.map(|name| Reader::<BenchSample>::open(&bus, name, 4)))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut children = StageProcesses(Vec::new());
-        for index in 0..5 {
-            children
-                .0
-                .push(spawn_stage(index, "iceoryx2", None, Some(&scope), stage_config)?);
-            if let Some(child) = children.0.last_mut() {
-                ready_line(child)?;
-            }
-        }
+        let children = StageProcesses::start_in(&scope, "iceoryx2", stage_config)?;
         let results = drive(
             cycles,
             "iceoryx2",
@@ -482,15 +484,7 @@ fn run_semaphore(config: &Config, stage_config: Option<&Path>, cycles: u64, obse
         let observers = (0..observers)
             .flat_map(|_| SERVICES.map(|name| SemaphoreReader::<BenchSample>::open(&node, name)))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut children = StageProcesses(Vec::new());
-        for index in 0..5 {
-            children
-                .0
-                .push(spawn_stage(index, "iceoryx2-sem", None, Some(&scope), stage_config)?);
-            if let Some(child) = children.0.last_mut() {
-                ready_line(child)?;
-            }
-        }
+        let children = StageProcesses::start_in(&scope, "iceoryx2-sem", stage_config)?;
         let waiting_since_ns = Arc::new(AtomicU64::new(0));
         let done = Arc::new(AtomicBool::new(false));
         let watchdog = {

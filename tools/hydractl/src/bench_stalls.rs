@@ -14,6 +14,8 @@ use anyhow::{Context, Result};
 use hydractl_bus::{clock, placement};
 use hydractl_sim::Config;
 
+use crate::slowest::Slowest;
+
 #[derive(clap::Args)]
 pub struct StallsArgs {
     /// Seconds of spinning, in bursts.
@@ -54,7 +56,8 @@ pub fn bench(args: StallsArgs) -> Result<()> {
     }
     let bursts = (args.duration / BURST.as_secs_f64()).ceil().max(1.0) as usize;
     let mut over = [0u64; WATCHED_NS.len()];
-    let mut longest = Vec::with_capacity(bursts * 4);
+    // Kept without allocating: the spin loop measures its own delays too.
+    let mut longest = Slowest::<(), 5>::default();
     let mut spun_ns = 0u64;
     let mut taken_ns = 0u64;
     let mut stolen_ns = Some(0u64);
@@ -74,7 +77,7 @@ pub fn bench(args: StallsArgs) -> Result<()> {
                 for (count, limit) in over.iter_mut().zip(WATCHED_NS) {
                     *count += u64::from(gap >= limit);
                 }
-                longest.push(gap);
+                longest.keep(gap, ());
             }
         }
         spun_ns += last - start;
@@ -84,11 +87,9 @@ pub fn bench(args: StallsArgs) -> Result<()> {
         };
         std::thread::sleep(REST);
     }
-    longest.sort_unstable_by(|a, b| b.cmp(a));
     let top: Vec<String> = longest
         .iter()
-        .take(5)
-        .map(|g| format!("{:.2}", *g as f64 / 1e6))
+        .map(|(gap, ())| format!("{:.2}", *gap as f64 / 1e6))
         .collect();
     let mut where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     if let Some(steered) = &reservation.interrupts {

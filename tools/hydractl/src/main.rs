@@ -9,6 +9,7 @@ mod model;
 mod recording;
 mod report;
 mod run;
+mod slowest;
 
 use std::path::{Path, PathBuf};
 
