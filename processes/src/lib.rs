@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Parser;
 use hydractl_bus::{placement, quiet_ipc_logging, Bus, RunScope};
+use hydractl_config::Config;
 use hydractl_samples::SensorSample;
-use hydractl_sim::stack::SensorEstimate;
-use hydractl_sim::Config;
+use hydractl_stages::SensorEstimate;
 
 pub mod handover;
 pub mod live_plant;

@@ -21,11 +21,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use hydractl_bus::{clock, Inlet, Outlet, PublisherWatch, Reader};
+use hydractl_config::StallPolicy;
 use hydractl_plant::{Plant, SensorModel};
 use hydractl_samples::{
     service, source, FrictionSample, Handover, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
 };
-use hydractl_sim::{build_plant, StallPolicy};
+use hydractl_sim::build_plant;
 
 use crate::handover::{PlantSeat, SeatChange};
 

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use hydractl_bus::{RunScope, PREFIX_ENV};
-use hydractl_sim::{RestartPolicy, SupervisorConfig};
+use hydractl_config::{RestartPolicy, SupervisorConfig};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
@@ -282,16 +282,16 @@ mod tests {
         policy.restart.window_s = 10.0;
         policy.processes.insert(
             "valve".into(),
-            hydractl_sim::RestartRule {
+            hydractl_config::RestartRule {
                 policy: RestartPolicy::OnFailure,
-                ..hydractl_sim::RestartRule::default()
+                ..hydractl_config::RestartRule::default()
             },
         );
         policy.processes.insert(
             "plant".into(),
-            hydractl_sim::RestartRule {
+            hydractl_config::RestartRule {
                 policy: RestartPolicy::Never,
-                ..hydractl_sim::RestartRule::default()
+                ..hydractl_config::RestartRule::default()
             },
         );
         let mut friction = Supervised::new("friction", Path::new("/nonexistent"), None);

@@ -5,7 +5,7 @@ use anyhow::Result;
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_processes::estimate_of;
 use hydractl_samples::{service, FrictionSample, PositionSample, SensorSample, ValveSample};
-use hydractl_sim::stack::FrictionStage;
+use hydractl_stages::FrictionStage;
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("friction")?;

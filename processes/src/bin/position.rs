@@ -4,11 +4,11 @@
 
 use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
+use hydractl_config::{PositionVariant, Structure};
 use hydractl_processes::handover::{Duty, Role, Tracker};
 use hydractl_processes::{estimate_of, time_of};
 use hydractl_samples::{code, service, FrictionSample, Handover, PositionSample, SensorSample};
-use hydractl_sim::stack::PositionStage;
-use hydractl_sim::{PositionVariant, Structure};
+use hydractl_stages::PositionStage;
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("position")?;

@@ -6,7 +6,7 @@ use hydractl_bus::devices::{SensorDevice, SimulatedSensors};
 use hydractl_bus::{clock, run_single, Outlet};
 use hydractl_plant::RawReading;
 use hydractl_samples::{service, valid, SensorSample};
-use hydractl_sim::stack::SensorStage;
+use hydractl_stages::SensorStage;
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("sensor")?;

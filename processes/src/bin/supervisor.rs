@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_loop, Bus, CommandServer, Outlet, PendingCommand, Reader, RunScope};
+use hydractl_config::{PositionVariant, Structure, TorqueVariant};
 use hydractl_processes::supervision::{Supervised, PIPELINE};
 use hydractl_processes::swap::{SwitchQuality, ValveLog};
 use hydractl_processes::SplitArgs;
@@ -16,7 +17,6 @@ use hydractl_samples::{
     RecorderStatus, SensorSample, SupervisorEvent, SupervisorReply, SupervisorRequest, SupervisorStatus, TorqueSample,
     ValveSample, MAX_PROCESSES,
 };
-use hydractl_sim::{PositionVariant, Structure, TorqueVariant};
 
 /// The newest sequence number seen on each pipeline service.
 struct Heartbeats {
@@ -229,7 +229,7 @@ impl RecorderChild {
 fn supervise(
     bus: &Bus,
     scope: &RunScope,
-    policy: &hydractl_sim::SupervisorConfig,
+    policy: &hydractl_config::SupervisorConfig,
     children: &mut [Supervised],
     recorder: &mut Option<RecorderChild>,
     swaps: &mut Swaps,
@@ -561,7 +561,7 @@ struct Seat {
 }
 
 impl Seat {
-    fn open(bus: &Bus, config: &hydractl_sim::Config) -> Result<Self> {
+    fn open(bus: &Bus, config: &hydractl_config::Config) -> Result<Self> {
         Ok(Self {
             source: source::SIMULATION,
             spare: None,
@@ -579,7 +579,12 @@ impl Seat {
 
     /// Keeps the spare: notes the machine's standby readings, restarts it
     /// as its rule says. Returns whether a dead node needs cleaning.
-    fn tick_spare(&mut self, scope: &RunScope, policy: &hydractl_sim::SupervisorConfig, now: Instant) -> Result<bool> {
+    fn tick_spare(
+        &mut self,
+        scope: &RunScope,
+        policy: &hydractl_config::SupervisorConfig,
+        now: Instant,
+    ) -> Result<bool> {
         let Some(spare) = &mut self.spare else {
             return Ok(false);
         };

@@ -4,11 +4,11 @@
 
 use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
+use hydractl_config::TorqueVariant;
 use hydractl_processes::estimate_of;
 use hydractl_processes::handover::{Duty, Role, Tracker};
 use hydractl_samples::{code, service, FrictionSample, Handover, PositionSample, SensorSample, TorqueSample};
-use hydractl_sim::stack::{PositionOutput, TorqueStage};
-use hydractl_sim::TorqueVariant;
+use hydractl_stages::{PositionOutput, TorqueStage};
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("torque")?;
@@ -55,7 +55,7 @@ fn main() -> Result<()> {
                 }
             }
             let output = PositionOutput {
-                reference: hydractl_sim::Reference {
+                reference: hydractl_control::Reference {
                     angle: p.reference_angle,
                     velocity: p.reference_velocity,
                     acceleration: p.reference_acceleration,

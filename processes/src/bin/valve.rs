@@ -8,7 +8,7 @@ use anyhow::Result;
 use hydractl_bus::devices::{SimulatedValve, ValveDevice};
 use hydractl_bus::{clock, run_loop, Inlet, Outlet, Wake};
 use hydractl_samples::{fault, service, valid, SensorSample, TorqueSample, ValveSample};
-use hydractl_sim::stack::{ValveFaults, ValveStage};
+use hydractl_stages::{ValveFaults, ValveStage};
 
 const COMMAND: usize = 0;
 const SENSOR: usize = 1;

@@ -6,10 +6,11 @@
 //! output's validation NRMSE, and its main parameter must come out within
 //! 20% of the truth.
 
+use hydractl_config::Config;
 use hydractl_ident::greybox::{diagnose, FitOptions, Signals};
 use hydractl_ident::Dataset;
 use hydractl_plant::Effect;
-use hydractl_sim::{simulate, Config};
+use hydractl_sim::simulate;
 
 fn closed_loop_data(effect: Option<&str>, seed: u64) -> Signals {
     let mut config = Config::default_sim().expect("built-in config");

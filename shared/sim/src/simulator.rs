@@ -7,9 +7,9 @@ use std::time::Instant;
 use hydractl_plant::{Effect, Plant, PlantError, SensorModel};
 use serde::Serialize;
 
-use crate::config::{Config, Structure};
 use crate::metrics;
-use crate::stack::{ControlStack, StackError};
+use hydractl_config::{Config, Structure};
+use hydractl_stages::{ControlStack, StackError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {

@@ -1,8 +1,9 @@
 //! A standby controller that tracks the running one takes over without a
 //! bump: the hot swap's algorithm, offline, on the closed loop.
 
-use hydractl_sim::stack::{PositionStage, TorqueStage};
-use hydractl_sim::{build_plant, Config, ControlStack, PositionVariant, TorqueVariant};
+use hydractl_config::{Config, PositionVariant, TorqueVariant};
+use hydractl_sim::build_plant;
+use hydractl_stages::{ControlStack, PositionStage, TorqueStage};
 
 /// The valve command's bump (its second difference, over the range 2; the
 /// loop's own motion is not a bump): the largest in the 50 ms around the

@@ -1,8 +1,9 @@
 //! The whole loop offline: the papers' headline, determinism, and every
 //! effect under closed-loop control.
 
+use hydractl_config::{Config, Structure};
 use hydractl_plant::{Effect, EffectKind, PlantParams, SensorParams};
-use hydractl_sim::{simulate, Config, Structure};
+use hydractl_sim::simulate;
 
 fn default_config(structure: Structure) -> Config {
     let mut config = Config::default_sim().expect("the built-in config is valid");

@@ -6,8 +6,10 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use hydractl_config::{Config, Structure, TorqueVariant};
 use hydractl_plant::{Effect, EffectKind};
-use hydractl_sim::{build_plant, Config, ControlStack, Structure, TorqueVariant};
+use hydractl_sim::build_plant;
+use hydractl_stages::ControlStack;
 
 struct Counting;
 

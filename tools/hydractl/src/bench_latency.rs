@@ -18,12 +18,12 @@ use hydractl_bus::semaphore_service::{
     self, SemaphoreInlet, SemaphoreOutlet, SemaphoreReader, SemaphoreWaker, MAX_OBSERVERS,
 };
 use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, Reader, RunScope, PREFIX_ENV};
+use hydractl_config::Config;
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
-use hydractl_sim::stack::{
+use hydractl_stages::{
     FrictionStage, PositionOutput, PositionStage, SensorEstimate, SensorStage, TorqueStage, ValveStage,
 };
-use hydractl_sim::Config;
 
 use crate::slowest::Slowest;
 
@@ -129,7 +129,7 @@ impl Stage {
             }
             Stage::Torque(stage) => {
                 let out = PositionOutput {
-                    reference: hydractl_sim::Reference {
+                    reference: hydractl_control::Reference {
                         velocity: s.reference_velocity,
                         ..Default::default()
                     },

@@ -8,13 +8,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, Outlet, RunScope};
+use hydractl_config::Config;
 use hydractl_processes::recording::Recorder;
 use hydractl_recording::{RecordOptions, RecordingWriter};
 use hydractl_samples::{
     service, FrictionSample, PlantReading, PositionSample, Recordable, SensorSample, TorqueSample, ValveSample,
     CDR_HEADER,
 };
-use hydractl_sim::{simulate, Config};
+use hydractl_sim::simulate;
 
 /// Cycles published between two drains: well inside a tap's buffer.
 const BATCH: usize = 100;

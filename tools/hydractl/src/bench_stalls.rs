@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use hydractl_bus::{clock, placement};
-use hydractl_sim::Config;
+use hydractl_config::Config;
 
 use crate::slowest::Slowest;
 

@@ -15,8 +15,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
+use hydractl_config::{Config, Structure};
 use hydractl_plant::{Effect, EffectKind};
-use hydractl_sim::{simulate, simulate_valve_steps, write_csv, Config, Structure};
+use hydractl_sim::{simulate, simulate_valve_steps, write_csv};
 
 #[derive(Parser)]
 #[command(name = "hydractl", version, about = "Control stack for a hydraulic rotary actuator")]

@@ -150,8 +150,8 @@ fn fit(args: FitArgs) -> Result<()> {
     let kinds = args.effects.iter().map(|n| parse_kind(n)).collect::<Result<Vec<_>>>()?;
     let options = options(&args.data)?;
     let prior = match &args.prior {
-        Some(path) => hydractl_sim::Config::load(path)?.plant,
-        None => hydractl_sim::Config::default_sim()?.plant,
+        Some(path) => hydractl_config::Config::load(path)?.plant,
+        None => hydractl_config::Config::default_sim()?.plant,
     };
     let signals = load_signals(&args.data.data)?;
     let mut model = greybox::fit_baseline(&signals, &prior, options)
@@ -302,7 +302,7 @@ pub fn signals_from_records(records: &[hydractl_sim::Record]) -> Result<Signals>
 /// `hydractl bench diagnose`: wall time of `diagnose` over the whole catalog
 /// on closed-loop data with a hidden dead-zone, for several data lengths.
 pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
-    let config = hydractl_sim::Config::default_sim()?;
+    let config = hydractl_config::Config::default_sim()?;
     let hidden = hydractl_plant::Effect::parse("deadzone")?;
     let mut text = format!(
         "bench diagnose: the whole catalog ({} effects), 1 kHz closed-loop data with a hidden dead-zone, one thread, median of {}\n",

@@ -220,7 +220,7 @@ pub fn run(args: RunArgs) -> Result<()> {
             bail!("--duration must be a finite number of seconds, got {d}");
         }
     }
-    let config = hydractl_sim::Config::load_or_default(args.config.as_deref())?;
+    let config = hydractl_config::Config::load_or_default(args.config.as_deref())?;
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
         eprintln!("{e}");
     }

@@ -1,0 +1,330 @@
+//! The TOML configuration shared by `hydractl sim` and every live process:
+//! one file describes plant, sensors, effects, controllers, reference,
+//! timing and supervision. Unknown keys are errors, so a typo never
+//! silently falls back to a default; a file may start from a `base` and
+//! give only what differs.
+
+mod control;
+mod supervisor;
+mod timing;
+mod validate;
+
+use std::path::{Path, PathBuf};
+
+use hydractl_control::Trajectory;
+use hydractl_plant::{EffectsConfig, PlantParams, SensorParams};
+use serde::{Deserialize, Serialize};
+
+pub use control::{
+    ControlConfig, OuterLoopConfig, OuterPart, PositionVariant, Structure, TorqueLoopConfig, TorqueVariant,
+    ValveGuardParams, MAX_GUARD_PERIODS,
+};
+pub use supervisor::{RestartPolicy, RestartRule, SupervisorConfig, SUPERVISED_PROCESSES};
+pub use timing::{StallPolicy, Timing};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("config {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("config {path}: `base = {base:?}`: cannot read {resolved}: {source}")]
+    Base {
+        path: PathBuf,
+        base: String,
+        resolved: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config {path}: [{section}] {source}")]
+    Plant {
+        path: PathBuf,
+        section: &'static str,
+        source: hydractl_plant::PlantError,
+    },
+    #[error("config {path}: [{section}] {source}")]
+    Control {
+        path: PathBuf,
+        section: &'static str,
+        source: hydractl_control::ControlError,
+    },
+    #[error("config {path}: [timing] {reason}")]
+    Timing { path: PathBuf, reason: String },
+    #[error("config {path}: [supervisor] {reason}")]
+    Supervisor { path: PathBuf, reason: String },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimulationConfig {
+    /// Seed of the sensor noise; the same seed gives the same run.
+    pub seed: u64,
+}
+
+impl Default for SimulationConfig {
+    fn default() -> Self {
+        Self { seed: 1 }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    #[serde(default)]
+    pub simulation: SimulationConfig,
+    #[serde(default)]
+    pub timing: Timing,
+    #[serde(default)]
+    pub plant: PlantParams,
+    #[serde(default)]
+    pub sensor: SensorParams,
+    /// Effects switched on in the simulated plant; none by default.
+    #[serde(default)]
+    pub effects: EffectsConfig,
+    pub control: ControlConfig,
+    #[serde(default)]
+    pub trajectory: Trajectory,
+    #[serde(default)]
+    pub supervisor: SupervisorConfig,
+    /// The machine the stack drives, when it is not the simulated plant:
+    /// here a stand-in process with its own parameters and effects (on the
+    /// vehicle, the machine's devices). With it, the simulated plant waits
+    /// in standby and takes over when the machine is lost.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<MachineConfig>,
+}
+
+/// The machine stand-in: the simulated plant's parameters, overridden.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct MachineConfig {
+    /// `[plant]` keys that differ on the machine.
+    pub plant: toml::Table,
+    /// The machine's own effects (the model's `[effects]` do not apply).
+    pub effects: EffectsConfig,
+    /// Its sensor noise seed, for a machine that is not the model's twin.
+    pub seed: Option<u64>,
+    /// The stand-in's sensor bus goes silent this long after it starts, as
+    /// a lost CAN bus would: for trying the fallback.
+    pub bus_lost_after_s: Option<f64>,
+}
+
+/// How deep `base = "FILE"` may chain.
+const MAX_BASE_DEPTH: usize = 4;
+
+impl Config {
+    /// Loads a config file. A file may start from another with
+    /// `base = "OTHER.toml"` (relative to itself) and give only what
+    /// differs: its tables are merged over the base's, key by key.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        if !text.lines().any(|l| l.trim_start().starts_with("base")) {
+            return Self::parse(&text, path);
+        }
+        let table = Self::load_table(path, &text, 0)?;
+        let config = Config::deserialize(toml::Value::Table(table)).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            message: e.to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    fn load_table(path: &Path, text: &str, depth: usize) -> Result<toml::Table, ConfigError> {
+        let parse_error = |message: String| ConfigError::Parse {
+            path: path.to_owned(),
+            message,
+        };
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        let Some(base) = table.remove("base") else {
+            return Ok(table);
+        };
+        let Some(base) = base.as_str() else {
+            return Err(parse_error("`base` must be a file name".into()));
+        };
+        if depth >= MAX_BASE_DEPTH {
+            return Err(parse_error(format!("`base` chains deeper than {MAX_BASE_DEPTH} files")));
+        }
+        let base_path = path.parent().unwrap_or(Path::new(".")).join(base);
+        let base_text = std::fs::read_to_string(&base_path).map_err(|source| ConfigError::Base {
+            path: path.to_owned(),
+            base: base.to_owned(),
+            resolved: base_path.clone(),
+            source,
+        })?;
+        let mut merged = Self::load_table(&base_path, &base_text, depth + 1)?;
+        merge_tables(&mut merged, table);
+        Ok(merged)
+    }
+
+    /// The machine stand-in's own config: this one with the machine's
+    /// plant parameters, effects and seed. `None` when there is no machine.
+    pub fn machine_plant(&self) -> Result<Option<Config>, ConfigError> {
+        let Some(machine) = &self.machine else {
+            return Ok(None);
+        };
+        let error = |message: String| ConfigError::Parse {
+            path: PathBuf::from("[machine]"),
+            message,
+        };
+        let mut plant = toml::Table::try_from(self.plant).map_err(|e| error(e.to_string()))?;
+        merge_tables(&mut plant, machine.plant.clone());
+        let mut config = self.clone();
+        config.plant =
+            PlantParams::deserialize(toml::Value::Table(plant)).map_err(|e| error(format!("[machine.plant] {e}")))?;
+        config.effects = machine.effects.clone();
+        if let Some(seed) = machine.seed {
+            config.simulation.seed = seed;
+        }
+        config.machine = None;
+        Ok(Some(config))
+    }
+
+    /// Parses and validates; `path` only names the source in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let config: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            message: e.to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    /// The config as TOML, for a recording's metadata.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_else(|e| format!("# the config cannot be written as TOML: {e}"))
+    }
+
+    /// The file's config, or the built-in default when no file is given.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
+        match path {
+            Some(path) => Self::load(path),
+            None => Self::default_sim(),
+        }
+    }
+
+    /// The default simulated rotator, compiled in so that tests and a bare
+    /// `hydractl sim` agree with `config/sim.toml`.
+    pub fn default_sim() -> Result<Self, ConfigError> {
+        Self::parse(DEFAULT_SIM_TOML, Path::new("config/sim.toml"))
+    }
+}
+
+pub const DEFAULT_SIM_TOML: &str = include_str!("../../../config/sim.toml");
+
+/// Merges `over` into `base`: tables key by key, anything else replaced.
+fn merge_tables(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_machine_config_starts_from_its_base_and_overrides_the_plant() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/machine.toml");
+        let config = Config::load(&path).expect("config/machine.toml");
+        assert_eq!(config.plant.inertia, 20.0, "the model is sim.toml's");
+        assert_eq!(config.supervisor.machine_lost_after_periods, 10);
+        let machine = config.machine_plant().expect("valid").expect("a machine");
+        assert_eq!(machine.plant.inertia, 22.0);
+        assert_eq!(machine.plant.supply_pressure, config.plant.supply_pressure);
+        assert!(machine.effects.0.contains_key("coulomb_friction"));
+        assert!(config.effects.0.is_empty());
+
+        let dir = std::env::temp_dir().join(format!("hydractl-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let bad = dir.join("bad.toml");
+        std::fs::write(
+            &bad,
+            format!(
+                "base = {:?}\n[machine.plant]\ninertai = 1.0\n",
+                path.display().to_string()
+            ),
+        )
+        .expect("write");
+        let err = Config::load(&bad).expect_err("a misspelt key").to_string();
+        assert!(err.contains("machine.plant") && err.contains("inertai"), "{err}");
+        std::fs::write(&bad, "base = \"missing.toml\"\n").expect("write");
+        let err = Config::load(&bad).expect_err("a missing base").to_string();
+        assert!(
+            err.contains("missing.toml") && err.contains("`base") && err.contains("bad.toml"),
+            "names the key, the file that holds it and the file it could not read: {err}"
+        );
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    #[test]
+    fn built_in_default_parses() {
+        let c = Config::parse(DEFAULT_SIM_TOML, Path::new("config/sim.toml")).expect("valid");
+        assert_eq!(c.timing.substeps(), 10);
+        assert!(c.effects.0.is_empty(), "the default plant has no effects");
+    }
+
+    #[test]
+    fn restart_rules_parse_and_bad_ones_are_named() {
+        let text =
+            format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valve]\npolicy = \"on-failure\"\nmax_restarts = 3\n");
+        let c = Config::parse(&text, Path::new("x.toml")).expect("valid");
+        assert_eq!(c.supervisor.restart_rule("valve").policy, RestartPolicy::OnFailure);
+        assert_eq!(c.supervisor.restart_rule("valve").max_restarts, 3);
+        assert_eq!(c.supervisor.restart_rule("sensor").policy, RestartPolicy::Always);
+        let unknown = format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valv]\npolicy = \"never\"\n");
+        let e = Config::parse(&unknown, Path::new("x.toml")).expect_err("no such process");
+        assert!(e.to_string().contains("supervisor.processes.valv"), "{e}");
+        let bad = format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valve]\npolicy = \"sometimes\"\n");
+        let e = Config::parse(&bad, Path::new("x.toml")).expect_err("no such policy");
+        assert!(e.to_string().contains("sometimes"), "{e}");
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_name_the_place() {
+        let bad = DEFAULT_SIM_TOML.replace("inertia = ", "inertiaa = ");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("unknown key");
+        let text = err.to_string();
+        assert!(text.contains("x.toml") && text.contains("inertiaa"), "{text}");
+
+        let bad = DEFAULT_SIM_TOML.replace("inertia = 20.0", "inertia = -1.0");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("negative");
+        assert!(
+            err.to_string().contains("[plant]") && err.to_string().contains("inertia"),
+            "{err}"
+        );
+
+        let bad = format!("{DEFAULT_SIM_TOML}\n[effects.dedzone]\n");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("unknown effect");
+        assert!(err.to_string().contains("deadzone"), "lists the valid names: {err}");
+
+        let bad = DEFAULT_SIM_TOML.replace("loop_cpu = 1 ", "# no loop CPU ");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("interrupts off no CPU");
+        assert!(err.to_string().contains("interrupts_off_loop_cpu"), "{err}");
+
+        let bad = DEFAULT_SIM_TOML.replace("realtime_priority = 50", "realtime_priority = 99");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("the kernel's priority");
+        assert!(
+            err.to_string().contains("x.toml") && err.to_string().contains("realtime_priority"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_controller_no_stage_accepts_is_named_by_its_section_at_load() {
+        let bad = DEFAULT_SIM_TOML.replace("max_age_periods = 3 ", "max_age_periods = 0 ");
+        let err = Config::parse(&bad, Path::new("x.toml")).expect_err("a guard of 0 periods");
+        let text = err.to_string();
+        assert!(
+            text.contains("x.toml") && text.contains("[control.valve_guard]") && text.contains("max_age_periods"),
+            "{text}"
+        );
+    }
+}

@@ -1,0 +1,153 @@
+//! Everything a loaded config is checked for, each error naming its file
+//! and section.
+
+use std::path::Path;
+
+use crate::{Config, ConfigError, SUPERVISED_PROCESSES};
+
+impl Config {
+    pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let plant = |section: &'static str| {
+            move |source| ConfigError::Plant {
+                path: path.to_owned(),
+                section,
+                source,
+            }
+        };
+        let control = |section: &'static str| {
+            move |source| ConfigError::Control {
+                path: path.to_owned(),
+                section,
+                source,
+            }
+        };
+        self.plant.validate().map_err(plant("plant"))?;
+        self.sensor.validate().map_err(plant("sensor"))?;
+        self.effects.build().map_err(plant("effects"))?;
+        self.trajectory.validate().map_err(control("trajectory"))?;
+        if let Some(machine) = self.machine_plant().map_err(|e| match e {
+            ConfigError::Parse { message, .. } => ConfigError::Parse {
+                path: path.to_owned(),
+                message,
+            },
+            other => other,
+        })? {
+            machine.plant.validate().map_err(plant("machine.plant"))?;
+            machine.effects.build().map_err(plant("machine.effects"))?;
+        }
+        if let Some(after) = self.machine.as_ref().and_then(|m| m.bus_lost_after_s) {
+            if !(after.is_finite() && after > 0.0) {
+                return Err(ConfigError::Parse {
+                    path: path.to_owned(),
+                    message: format!("[machine] bus_lost_after_s must be positive, got {after}"),
+                });
+            }
+        }
+        let t = &self.timing;
+        if !(t.control_rate_hz.is_finite() && t.control_rate_hz > 0.0 && t.integration_rate_hz.is_finite()) {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: "control_rate_hz and integration_rate_hz must be positive and finite".into(),
+            });
+        }
+        if !(t.command_timeout_periods.is_finite() && t.command_timeout_periods > 0.0) {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: format!(
+                    "command_timeout_periods must be positive, got {}",
+                    t.command_timeout_periods
+                ),
+            });
+        }
+        if t.interrupts_off_loop_cpu && t.loop_cpu.is_none() {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: "interrupts_off_loop_cpu needs a loop_cpu to steer them off".to_owned(),
+            });
+        }
+        if let Some(priority) = t.realtime_priority.filter(|p| !(1..=98).contains(p)) {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: format!("realtime_priority must be within 1–98 (99 is the kernel's own), got {priority}"),
+            });
+        }
+        let ratio = t.integration_rate_hz / t.control_rate_hz;
+        if ratio < 1.0 || (ratio - ratio.round()).abs() > 1e-9 {
+            return Err(ConfigError::Timing {
+                path: path.to_owned(),
+                reason: format!(
+                    "integration_rate_hz ({}) must be a whole multiple of control_rate_hz ({})",
+                    t.integration_rate_hz, t.control_rate_hz
+                ),
+            });
+        }
+        let sup = &self.supervisor;
+        for (name, value) in [
+            ("hung_after_ms", sup.hung_after_ms),
+            ("restart_backoff_initial_ms", sup.restart_backoff_initial_ms),
+            ("restart_backoff_max_ms", sup.restart_backoff_max_ms),
+            ("stop_timeout_ms", sup.stop_timeout_ms),
+            ("machine_lost_after_periods", sup.machine_lost_after_periods),
+            ("misbehaving_after_periods", sup.misbehaving_after_periods),
+        ] {
+            if value == 0 {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!("{name} must be above 0"),
+                });
+            }
+        }
+        for (stage, variant) in &sup.fallback_variants {
+            let allowed: &[&str] = match stage.as_str() {
+                "position" => &["pid", "mfc"],
+                "torque" => &["pid", "hinf"],
+                _ => &[],
+            };
+            if !allowed.contains(&variant.as_str()) {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "fallback_variants.{stage} = `{variant}`: the stages are `position` (pid, mfc) and `torque` (pid, hinf)"
+                    ),
+                });
+            }
+        }
+        for name in sup.processes.keys() {
+            if !SUPERVISED_PROCESSES.contains(&name.as_str()) {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "[supervisor.processes.{name}]: no process `{name}`; the processes are {}",
+                        SUPERVISED_PROCESSES.join(", ")
+                    ),
+                });
+            }
+        }
+        for (name, rule) in
+            std::iter::once(("restart", &sup.restart)).chain(sup.processes.iter().map(|(n, r)| (n.as_str(), r)))
+        {
+            if !(rule.window_s.is_finite() && rule.window_s > 0.0) {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: format!(
+                        "{name}: window_s must be a positive number of seconds, got {}",
+                        rule.window_s
+                    ),
+                });
+            }
+        }
+        if sup.restart_backoff_max_ms < sup.restart_backoff_initial_ms {
+            return Err(ConfigError::Supervisor {
+                path: path.to_owned(),
+                reason: "restart_backoff_max_ms must be at least restart_backoff_initial_ms".into(),
+            });
+        }
+        self.control
+            .check_controllers(self.timing.control_period())
+            .map_err(|(section, source)| ConfigError::Control {
+                path: path.to_owned(),
+                section,
+                source,
+            })
+    }
+}

@@ -1,0 +1,121 @@
+//! The position stage: the reference trajectory and the outer loop.
+
+use hydractl_config::{Config, OuterPart, PositionVariant, Structure};
+use hydractl_control::{Mfc, Pid, Reference, Trajectory};
+
+use crate::{in_section, SensorEstimate, StackError};
+
+/// The outer loop's variants.
+#[derive(Debug, Clone)]
+// One lives per stage and is never moved on the hot path; boxing would only
+// add an indirection.
+#[allow(clippy::large_enum_variant)]
+pub enum OuterLoop {
+    Pid(Pid),
+    Mfc(Mfc),
+}
+
+/// What the position stage publishes.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PositionOutput {
+    pub reference: Reference,
+    /// Valve command (position-only) or torque reference, N·m (cascade).
+    pub output: f64,
+}
+
+/// Position stage: reference trajectory and outer loop.
+#[derive(Debug, Clone)]
+pub struct PositionStage {
+    structure: Structure,
+    variant: PositionVariant,
+    trajectory: Trajectory,
+    outer: OuterLoop,
+    mfc_model: Option<(f64, f64)>,
+    started: bool,
+}
+
+impl PositionStage {
+    pub fn new(config: &Config) -> Result<Self, StackError> {
+        Self::with_variant(config, config.control.outer().variant)
+    }
+
+    pub fn with_variant(config: &Config, variant: PositionVariant) -> Result<Self, StackError> {
+        let outer = config.control.outer();
+        let ts = config.timing.control_period();
+        let outer = match variant {
+            PositionVariant::Pid => OuterLoop::Pid(
+                Pid::new(outer.pid, ts).map_err(in_section(config.control.outer_section(OuterPart::Pid)))?,
+            ),
+            PositionVariant::Mfc => OuterLoop::Mfc(
+                Mfc::new(outer.mfc, ts).map_err(in_section(config.control.outer_section(OuterPart::Mfc)))?,
+            ),
+        };
+        let mfc = &config.control.outer().mfc;
+        Ok(Self {
+            structure: config.control.structure,
+            variant,
+            trajectory: config.trajectory.clone(),
+            outer,
+            mfc_model: Some((mfc.j_hat, mfc.b_hat)),
+            started: false,
+        })
+    }
+
+    pub fn variant(&self) -> PositionVariant {
+        self.variant
+    }
+
+    pub fn structure(&self) -> Structure {
+        self.structure
+    }
+
+    /// One period. The friction compensation (a valve command) joins this
+    /// loop's output only when this loop drives the valve (position-only);
+    /// in the cascade the torque stage adds it.
+    pub fn process(&mut self, time: f64, sensor: &SensorEstimate, friction: f64) -> PositionOutput {
+        let friction = match self.structure {
+            Structure::Position => friction,
+            Structure::Cascade => 0.0,
+        };
+        let reference = self.trajectory.sample(time);
+        let error = reference.angle - sensor.angle;
+        if !self.started {
+            self.started = true;
+            // Start where the machine is, not at zero: a stage restarted
+            // mid-run would otherwise begin with its model a whole motion
+            // away. The output starts at the model's inverse dynamics.
+            if let (OuterLoop::Mfc(mfc), Some((j_hat, b_hat))) = (&mut self.outer, self.mfc_model) {
+                let output = j_hat * reference.acceleration + b_hat * reference.velocity + friction;
+                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction);
+            }
+        }
+        let output = match &mut self.outer {
+            OuterLoop::Pid(pid) => pid.update(error, friction),
+            OuterLoop::Mfc(mfc) => mfc.update(reference.angle, sensor.angle, friction),
+        };
+        PositionOutput { reference, output }
+    }
+
+    /// Bumpless transfer: called after [`PositionStage::process`] for the
+    /// same period, sets this loop's state as if its output had been
+    /// `output`, the output of the loop it is about to replace, so that it
+    /// goes on from there. A standby stage calls it every period while it
+    /// tracks the running one.
+    pub fn track(&mut self, output: f64, time: f64, sensor: &SensorEstimate, friction: f64) {
+        let friction = match self.structure {
+            Structure::Position => friction,
+            Structure::Cascade => 0.0,
+        };
+        let reference = self.trajectory.sample(time);
+        match &mut self.outer {
+            OuterLoop::Pid(pid) => pid.initialize_output(output, reference.angle - sensor.angle, friction),
+            // A standby MFC has started (and initialized its model) on its
+            // first period; from then on its model runs on.
+            OuterLoop::Mfc(mfc) if self.started => mfc.track(output),
+            OuterLoop::Mfc(mfc) => {
+                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction)
+            }
+        }
+        self.started = true;
+    }
+}

@@ -1,0 +1,129 @@
+//! The torque stage: the inner loop, torque reference to valve command.
+
+use hydractl_config::{Config, Structure, TorqueVariant};
+use hydractl_control::{HInfinity, Pid};
+
+use crate::{in_section, PositionOutput, SensorEstimate, StackError};
+
+/// The inner loop's variants.
+#[derive(Debug, Clone)]
+pub enum InnerLoop {
+    Pid(Pid),
+    HInfinity(HInfinity),
+}
+
+/// Torque stage: the inner loop, torque reference to valve command.
+#[derive(Debug, Clone)]
+pub struct TorqueStage {
+    structure: Structure,
+    variant: TorqueVariant,
+    inner: InnerLoop,
+    ts: f64,
+    velocity_feedforward: f64,
+    rate_feedforward: f64,
+    rate_blend: f64,
+    previous_reference: Option<f64>,
+    reference_rate: f64,
+    /// Bumpless transfer into the H∞ loop: the running command less the
+    /// H∞'s own, added to its output and faded out after the switch (its
+    /// state, full of fast modes, is never forced).
+    transfer_offset: f64,
+    transfer_fade: f64,
+    /// The H∞ loop's own last command, before the offset.
+    own_command: f64,
+}
+
+/// How fast a transfer offset fades once a standby inner loop is in charge.
+const TRANSFER_FADE_S: f64 = 0.05;
+
+impl TorqueStage {
+    pub fn new(config: &Config) -> Result<Self, StackError> {
+        Self::with_variant(config, config.control.torque_variant)
+    }
+
+    pub fn with_variant(config: &Config, variant: TorqueVariant) -> Result<Self, StackError> {
+        let ts = config.timing.control_period();
+        let torque = &config.control.torque;
+        torque.check_feedforward().map_err(in_section("control.torque"))?;
+        let inner = match variant {
+            TorqueVariant::Pid => {
+                InnerLoop::Pid(Pid::new(config.control.torque.pid, ts).map_err(in_section("control.torque.pid"))?)
+            }
+            TorqueVariant::Hinf => InnerLoop::HInfinity(
+                HInfinity::new(config.control.torque.hinf.clone(), ts).map_err(in_section("control.torque.hinf"))?,
+            ),
+        };
+        Ok(Self {
+            structure: config.control.structure,
+            variant,
+            inner,
+            ts,
+            velocity_feedforward: torque.velocity_feedforward,
+            rate_feedforward: torque.rate_feedforward,
+            rate_blend: ts / (torque.rate_filter_s + ts),
+            previous_reference: None,
+            reference_rate: 0.0,
+            transfer_offset: 0.0,
+            transfer_fade: (-ts / TRANSFER_FADE_S).exp(),
+            own_command: 0.0,
+        })
+    }
+
+    pub fn variant(&self) -> TorqueVariant {
+        self.variant
+    }
+
+    /// The valve command for the position stage's output. In the cascade
+    /// that output is a torque reference and the inner loop runs, with the
+    /// friction compensation (valve-command units) added as the rotary paper
+    /// adds it to its torque PID; in position-only control it already is
+    /// the command, and passes through.
+    pub fn process(&mut self, position: &PositionOutput, sensor: &SensorEstimate, friction: f64) -> f64 {
+        match self.structure {
+            Structure::Position => position.output,
+            Structure::Cascade => self.inner_loop(position.output, position.reference.velocity, sensor, friction),
+        }
+    }
+
+    /// Bumpless transfer, as [`PositionStage::track`]: called after
+    /// [`TorqueStage::process`] for the same period, sets the inner loop's
+    /// state as if its command had been `command`. Nothing to track when
+    /// the stage passes the command through.
+    pub fn track(&mut self, command: f64, position: &PositionOutput, sensor: &SensorEstimate, friction: f64) {
+        if self.structure == Structure::Position {
+            return;
+        }
+        let feedforward = friction
+            + self.velocity_feedforward * position.reference.velocity
+            + self.rate_feedforward * self.reference_rate;
+        let error = position.output - sensor.torque;
+        match &mut self.inner {
+            InnerLoop::Pid(pid) => pid.initialize_output(command, error, feedforward),
+            InnerLoop::HInfinity(_) => self.transfer_offset = command - self.own_command,
+        }
+    }
+
+    fn inner_loop(
+        &mut self,
+        torque_reference: f64,
+        reference_velocity: f64,
+        sensor: &SensorEstimate,
+        friction: f64,
+    ) -> f64 {
+        let previous = self.previous_reference.unwrap_or(torque_reference);
+        self.previous_reference = Some(torque_reference);
+        self.reference_rate += self.rate_blend * ((torque_reference - previous) / self.ts - self.reference_rate);
+        let feedforward =
+            friction + self.velocity_feedforward * reference_velocity + self.rate_feedforward * self.reference_rate;
+        let error = torque_reference - sensor.torque;
+        match &mut self.inner {
+            InnerLoop::Pid(pid) => pid.update(error, feedforward),
+            InnerLoop::HInfinity(hinf) => {
+                self.own_command = hinf.update(error) + feedforward;
+                let command = self.own_command + self.transfer_offset;
+                self.transfer_offset *= self.transfer_fade;
+                command.clamp(-1.0, 1.0)
+            }
+        }
+    }
+}
