@@ -13,8 +13,7 @@ use hydractl_stages::SensorEstimate;
 pub mod handover;
 pub mod live_plant;
 pub mod recording;
-pub mod supervision;
-pub mod swap;
+pub mod supervisor;
 
 #[derive(Parser, Debug)]
 pub struct ProcessArgs {

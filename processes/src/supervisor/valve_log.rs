@@ -62,6 +62,17 @@ impl ValveLog {
         self.entries.iter().find(|e| e.0 > seq && e.2 != 0).map(|e| e.0)
     }
 
+    /// How many periods the valve held its last command after a process
+    /// last answered reading `last_seq`, before it went safe; `None` when
+    /// the log shows no fault after it. The command for reading
+    /// `last_seq + 1` was due when reading `last_seq + 2` came: the fault
+    /// shows from there, and until the guard trips the valve holds its last
+    /// command.
+    pub fn valve_safe_after_periods(&self, last_seq: u64) -> Option<u64> {
+        self.first_fault_after(last_seq)
+            .map(|at| at.saturating_sub(last_seq + 2))
+    }
+
     /// Among the valve's samples for the last `window` readings, and after
     /// reading `after`, those whose command the valve rejected as garbage
     /// (`garbage` flags).
@@ -200,5 +211,20 @@ mod tests {
         }
         assert_eq!(log.entries.len(), 4);
         assert_eq!(log.newest_seq(), Some(9));
+    }
+
+    #[test]
+    fn the_valve_is_safe_from_the_first_fault_after_the_command_that_did_not_come() {
+        let mut log = ValveLog::with_capacity(16);
+        for seq in 10..=12 {
+            log.push(seq, 0.3, 0);
+        }
+        // The process answered reading 10 last; the valve held 0.3 for
+        // readings 11 and 12 (the guard's 3 periods) and went safe at 13.
+        for seq in 13..=14 {
+            log.push(seq, 0.0, 1);
+        }
+        assert_eq!(log.valve_safe_after_periods(10), Some(1));
+        assert_eq!(log.valve_safe_after_periods(14), None, "no fault seen after it yet");
     }
 }

@@ -1,0 +1,425 @@
+//! The watchdog's logic: starts every process of the loop, restarts a
+//! crashed, hung or misbehaving one with back-off after cleaning its stale
+//! iceoryx2 resources, keeps the plant seat, runs hot swaps, accounts for
+//! every fault, publishes the status of all, and stops them in order. The
+//! `supervisor` binary wires it to its node and ticks it.
+
+mod child;
+mod faults;
+mod heartbeats;
+mod recorder;
+mod seat;
+mod status;
+mod swaps;
+mod valve_log;
+
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use hydractl_bus::{clock, Bus, CommandServer, Outlet, RunScope};
+use hydractl_config::{Config, PositionVariant, Structure, SupervisorConfig, TorqueVariant};
+use hydractl_samples::{
+    code, fault, service, source, PlantReading, SupervisorReply, SupervisorRequest, SupervisorStatus,
+};
+
+pub use child::{DownReason, Supervised, PIPELINE};
+pub use valve_log::{Rejected, SwitchQuality, ValveLog, TRANSIENT};
+
+use faults::{blamed_for_rejections, is_hung, Fault, Liveness};
+use heartbeats::Heartbeats;
+use recorder::RecorderChild;
+use seat::Seat;
+use status::status_of;
+use swaps::Swaps;
+
+/// A (re)started process gets this long to open its ports.
+const STARTUP_GRACE: Duration = Duration::from_millis(500);
+
+/// The supervisor of one run: its children, and what it has seen of them.
+pub struct Supervisor {
+    scope: RunScope,
+    policy: SupervisorConfig,
+    /// The loop's processes in [`PIPELINE`] order; `children[0]` is the
+    /// plant in charge.
+    children: Vec<Supervised>,
+    recorder: Option<RecorderChild>,
+    swaps: Swaps,
+    seat: Seat,
+    commands: CommandServer<SupervisorRequest, SupervisorReply>,
+    heartbeats: Heartbeats,
+    status: Outlet<SupervisorStatus>,
+    own_pid: u32,
+    last_status: Instant,
+    status_seq: u64,
+    last_reading: Option<PlantReading>,
+    /// A fault is published once its process is back (or given up on),
+    /// with how long each step took.
+    faults: Vec<Option<Fault>>,
+    /// Each output's newest answer, by its own timestamp.
+    last_answer_ns: Vec<u64>,
+    restarting: Vec<bool>,
+    position_output_finite: bool,
+    /// The newest rejected command already acted on.
+    misbehaving_handled: Option<u64>,
+}
+
+impl Supervisor {
+    /// Opens the supervisor's ports and lays out its children (none started
+    /// yet). `config_path` is passed on to every child; `record` is where a
+    /// recorder writes, when the run records.
+    pub fn open(bus: &Bus, config: &Config, args: &crate::ProcessArgs) -> Result<Self> {
+        let dir = hydractl_bus::binary_dir()?;
+        let config_path = args.config.clone();
+        let mut children: Vec<Supervised> = PIPELINE
+            .iter()
+            .map(|(name, _, _)| Supervised::new(name, &dir, config_path.clone()))
+            .collect();
+        // With a machine, it holds the plant seat and the simulated plant
+        // waits as its spare.
+        let mut seat = Seat::open(bus, config)?;
+        if config.machine.is_some() {
+            let machine = Supervised::new("machine", &dir, config_path.clone());
+            seat.spare = Some(std::mem::replace(&mut children[0], machine));
+            seat.source = source::MACHINE;
+        }
+        let cascade = config.control.structure == Structure::Cascade;
+        children[3].variant = Some(match config.control.outer().variant {
+            PositionVariant::Pid => "pid",
+            PositionVariant::Mfc => "mfc",
+        });
+        // In position-only control the torque stage passes the command through.
+        children[4].variant = cascade.then_some(match config.control.torque_variant {
+            TorqueVariant::Pid => "pid",
+            TorqueVariant::Hinf => "hinf",
+        });
+        let recorder = args.record.out.as_ref().map(|out| RecorderChild {
+            child: Supervised::new("recorder", &dir, config_path.clone()),
+            split: args.record.split.clone(),
+            out: out.clone(),
+        });
+        let count = children.len();
+        Ok(Self {
+            scope: bus.scope().clone(),
+            policy: config.supervisor.clone(),
+            children,
+            recorder,
+            swaps: Swaps::open(bus, dir, config_path, cascade)?,
+            seat,
+            commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
+            heartbeats: Heartbeats::open(bus)?,
+            status: Outlet::open(bus, service::SUPERVISOR_STATUS)?,
+            own_pid: std::process::id(),
+            last_status: Instant::now(),
+            status_seq: 0,
+            last_reading: None,
+            faults: vec![None; count],
+            last_answer_ns: vec![clock::now_ns(); count],
+            restarting: vec![true; count],
+            position_output_finite: true,
+            misbehaving_handled: None,
+        })
+    }
+
+    /// Starts the recorder first (so that the loop's first samples are
+    /// recorded), then the loop's processes and the spare plant.
+    pub fn start(&mut self, bus: &Bus) -> Result<()> {
+        if let Some(r) = &mut self.recorder {
+            r.start(bus, &self.scope)?;
+        }
+        for child in self.children.iter_mut() {
+            child.spawn(&self.scope, &[])?;
+        }
+        if let Some(spare) = &mut self.seat.spare {
+            spare.spawn(&self.scope, &["--standby".to_owned()])?;
+        }
+        let now = clock::now_ns();
+        self.last_answer_ns.iter_mut().for_each(|t| *t = now);
+        Ok(())
+    }
+
+    /// One round of watching, every few milliseconds: heartbeats, the
+    /// machine's loss, misbehaving controllers, crashes and hangs,
+    /// restarts, commands, swaps and the status.
+    pub fn tick(&mut self, now: Instant) -> Result<()> {
+        let Self {
+            scope,
+            policy,
+            children,
+            recorder,
+            swaps,
+            seat,
+            commands,
+            heartbeats,
+            status,
+            own_pid,
+            last_status,
+            status_seq,
+            last_reading,
+            faults,
+            last_answer_ns,
+            restarting,
+            position_output_finite,
+            misbehaving_handled,
+        } = self;
+        let (scope, policy, own_pid) = (&*scope, &*policy, *own_pid);
+        let hung_after = Duration::from_millis(policy.hung_after_ms);
+        let advanced = heartbeats.advanced(last_reading, position_output_finite)?;
+        // Whether each output had paused, before this round's news, by
+        // its own timestamps (a just-restarted process has none yet).
+        let now_ns = clock::now_ns();
+        let mut paused = [false; PIPELINE.len()];
+        for (p, last_ns) in paused.iter_mut().zip(last_answer_ns.iter()) {
+            *p = Duration::from_nanos(now_ns.saturating_sub(*last_ns)) >= hung_after / 2;
+        }
+        for i in 0..children.len() {
+            if let Some(answer) = advanced[i] {
+                children[i].last_output = now;
+                children[i].last_seq = Some(answer.seq);
+                last_answer_ns[i] = answer.time_ns;
+                // Back after a fault: the fault's account is complete.
+                if let Some(fault) = faults[i].take() {
+                    swaps.publish_fault(children[i].name, fault, Some(now))?;
+                }
+            }
+            // Input back after a pause: measure a hang from now on.
+            if i > 0 && advanced[i - 1].is_some() && paused[i - 1] {
+                children[i].input_resumed = now;
+            }
+        }
+        let mut cleanup_needed = false;
+        // The machine lost (dead, or its readings stopped): the simulated
+        // plant takes the seat before anything else is judged.
+        if seat.can_fall_back() {
+            let silent_for = Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[0]));
+            let crashed = children[0].reap();
+            if crashed || (last_reading.is_some() && silent_for >= seat.lost_after) {
+                if crashed {
+                    cleanup_needed = true;
+                }
+                let why = if crashed {
+                    format!(
+                        "the machine process exited; its last reading came {} ms before",
+                        silent_for.as_millis()
+                    )
+                } else {
+                    format!("no reading from the machine for {} ms", silent_for.as_millis())
+                };
+                seat.fall_back(
+                    children,
+                    swaps,
+                    last_reading.map(|r| r.sensor_seq),
+                    silent_for,
+                    &why,
+                    now,
+                )?;
+                // The plant's own output clock stays where the machine
+                // left it: downstream waits for readings, not hung.
+                faults[0] = None;
+                if crashed {
+                    if let Some(spare) = &mut seat.spare {
+                        spare.after_stop(now, policy);
+                    }
+                }
+            }
+        }
+        cleanup_needed |= seat.tick_spare(scope, policy, now)?;
+        // A controller whose commands the valve keeps rejecting (garbage,
+        // or a limit cycle): the valve is already neutral; the controller
+        // is restarted, into its fallback variant if the config names one.
+        let rejected = swaps.log.rejected(
+            fault::NOT_FINITE | fault::OUT_OF_RANGE | fault::LIMIT_CYCLE,
+            2 * policy.misbehaving_after_periods,
+            *misbehaving_handled,
+        );
+        if rejected.count >= policy.misbehaving_after_periods {
+            *misbehaving_handled = rejected.newest;
+            let i = blamed_for_rejections(*position_output_finite, children[4].variant.is_none());
+            let child = &mut children[i];
+            if child.is_running() {
+                let (kind, what) = if rejected.why & fault::LIMIT_CYCLE != 0 {
+                    (code::EVENT_LIMIT_CYCLE, "limit-cycling")
+                } else {
+                    (code::EVENT_MISBEHAVING, "garbage")
+                };
+                let from = child.variant;
+                if let Some(v) = policy
+                    .fallback_variants
+                    .get(child.name)
+                    .and_then(|v| code::variant_code(v))
+                {
+                    child.variant = Some(code::variant_name(v));
+                }
+                faults[i] = Some(Fault {
+                    kind,
+                    pid: child.pid().unwrap_or(0),
+                    detected_at: now,
+                    silent_for: Duration::ZERO,
+                    last_seq: rejected.newest.map(|s| s.saturating_sub(rejected.count)),
+                    variants: from.zip(child.variant),
+                });
+                child.kill_hung();
+                cleanup_needed = true;
+                eprintln!(
+                    "supervisor: the valve rejected {} commands in {} readings as {what}: {} misbehaves; restarting it ({})",
+                    rejected.count,
+                    2 * policy.misbehaving_after_periods,
+                    child.name,
+                    child.variant.unwrap_or("-")
+                );
+                restarting[i] = child.after_stop(now, policy);
+            }
+        }
+        for i in 0..children.len() {
+            // The input flows when its producer's outputs do, by their own
+            // timestamps: a producer just restarted has none yet.
+            let input_flowing =
+                i == 0 || Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[i - 1])) < hung_after / 2;
+            let child = &mut children[i];
+            // Silent since its last output's own timestamp: the
+            // supervisor's tick would hide up to 5 ms of it.
+            let (pid, silent_for, last_seq) = (
+                child.pid().unwrap_or(0),
+                Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[i])),
+                child.last_seq,
+            );
+            let fault = |kind| Fault {
+                kind,
+                pid,
+                detected_at: now,
+                silent_for,
+                last_seq,
+                variants: None,
+            };
+            if child.reap() {
+                faults[i] = Some(fault(code::EVENT_CRASH));
+                cleanup_needed = true;
+                restarting[i] = child.after_stop(now, policy);
+            } else if child.is_running()
+                && is_hung(
+                    Liveness {
+                        uptime: child.uptime(now),
+                        input_flowing,
+                        quiet_for: now.saturating_duration_since(child.last_output.max(child.input_resumed)),
+                    },
+                    STARTUP_GRACE,
+                    hung_after,
+                )
+            {
+                faults[i] = Some(fault(code::EVENT_HANG));
+                child.kill_hung();
+                cleanup_needed = true;
+                restarting[i] = child.after_stop(now, policy);
+            }
+        }
+        // A process left down: its fault's account ends here.
+        for i in 0..children.len() {
+            if !std::mem::replace(&mut restarting[i], true) {
+                if let Some(fault) = faults[i].take() {
+                    let why = children[i].given_up.clone().unwrap_or_default();
+                    eprintln!("supervisor: {} is left down: {why}", children[i].name);
+                    swaps.publish_fault(children[i].name, fault, None)?;
+                }
+            }
+        }
+        if let Some(r) = recorder.as_mut() {
+            if r.child.reap() {
+                cleanup_needed = true;
+                if !r.child.after_stop(now, policy) {
+                    let why = r.child.given_up.clone().unwrap_or_default();
+                    eprintln!("supervisor: the recorder is left down: {why}");
+                }
+            }
+        }
+        if cleanup_needed {
+            scope.remove_dead_nodes()?;
+        }
+        if let Some(r) = recorder.as_mut() {
+            if r.child.restart_due(now) {
+                r.restart(scope)?;
+            }
+        }
+        for child in children.iter_mut() {
+            if child.restart_due(now) {
+                // A new plant goes on from the loop's last reading.
+                let args: Vec<String> = match (child.name, *last_reading) {
+                    ("plant", Some(r)) => vec![
+                        "--resume".into(),
+                        crate::Resume {
+                            seq: r.sensor_seq,
+                            angle: r.true_angle,
+                            p_a: r.p_a,
+                            p_b: r.p_b,
+                        }
+                        .to_arg(),
+                    ],
+                    _ => Vec::new(),
+                };
+                child.spawn(scope, &args)?;
+                child.restarts += 1;
+            }
+        }
+        let request = match commands.receive()? {
+            Some(r) if r.request().stage == code::STAGE_PLANT => {
+                seat.on_request(r, children, swaps, last_reading.map(|r| r.sensor_seq), now)?;
+                None
+            }
+            other => other,
+        };
+        swaps.tick(scope, children, request, last_reading.map(|r| r.sensor_seq), now)?;
+        if now.saturating_duration_since(*last_status) >= Duration::from_millis(100) {
+            *last_status = now;
+            let recorder = recorder.as_ref().map(|r| &r.child);
+            status.publish(status_of(
+                *status_seq,
+                children,
+                seat,
+                recorder,
+                own_pid,
+                now,
+                hung_after,
+            ))?;
+            *status_seq += 1;
+        }
+        Ok(())
+    }
+
+    /// Stops the loop, then the recorder, which drains what the loop last
+    /// published and finishes its file; then cleans what is left of the run.
+    pub fn stop(self, bus: Bus) -> Result<()> {
+        let Self {
+            scope,
+            policy,
+            mut children,
+            mut recorder,
+            swaps,
+            mut seat,
+            commands,
+            heartbeats,
+            status,
+            ..
+        } = self;
+        let deadline = Instant::now() + Duration::from_millis(policy.stop_timeout_ms);
+        for child in children.iter().rev() {
+            child.request_stop();
+        }
+        if let Some(spare) = &seat.spare {
+            spare.request_stop();
+        }
+        for child in children.iter_mut().rev() {
+            child.finish_stop(deadline);
+        }
+        if let Some(spare) = &mut seat.spare {
+            spare.finish_stop(deadline);
+        }
+        if let Some(r) = &mut recorder {
+            r.child.request_stop();
+            // Finishing a file (its last chunk, summary and indexes) takes
+            // longer than a control process's stop.
+            r.child.finish_stop(Instant::now() + Duration::from_secs(10));
+        }
+        // Ports before their node: a port keeps its node alive.
+        drop((swaps, seat, commands, heartbeats, status));
+        drop(bus);
+        Ok(scope.clean_stale()?)
+    }
+}

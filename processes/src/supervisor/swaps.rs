@@ -1,0 +1,442 @@
+//! Hot swaps of the position or torque controller, and the supervisor's
+//! handovers and events.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use hydractl_bus::{clock, Bus, Outlet, PendingCommand, Reader, RunScope};
+use hydractl_samples::{
+    code, fixed_name, service, Handover, PositionSample, SupervisorEvent, SupervisorReply, SupervisorRequest,
+    TorqueSample, ValveSample,
+};
+
+use super::child::Supervised;
+use super::faults::Fault;
+use super::valve_log::{SwitchQuality, ValveLog};
+
+/// Hot swaps of the position or torque controller, asked for over
+/// `hydractl/supervisor/command`: the new variant starts as a standby
+/// process that tracks the running one; once it answers, a handover names
+/// the reading from which it is in charge; the valve's samples around that
+/// reading judge the switch; then the old process is stopped.
+pub(super) struct Swaps {
+    handovers: Outlet<Handover>,
+    events: Outlet<SupervisorEvent>,
+    valve: Reader<ValveSample>,
+    standby_position: Reader<PositionSample>,
+    standby_torque: Reader<TorqueSample>,
+    pub(super) log: ValveLog,
+    dir: PathBuf,
+    config: Option<PathBuf>,
+    cascade: bool,
+    current: Option<SwapInProgress>,
+    handover_seq: u64,
+    event_seq: u64,
+}
+
+struct SwapInProgress {
+    index: usize,
+    stage: u32,
+    from: &'static str,
+    to: &'static str,
+    child: Supervised,
+    request: PendingCommand<SupervisorRequest, SupervisorReply>,
+    standby_outputs: u32,
+    phase: SwapPhase,
+}
+
+enum SwapPhase {
+    Starting { since: Instant },
+    HandedOver { at_seq: u64, since: Instant },
+}
+
+/// Readings between the handover being published and the switch: 20 ms,
+/// ample for both processes to read it.
+pub(super) const HANDOVER_LEAD: u64 = 20;
+/// Standby outputs required before a handover: it has tracked for 100 ms.
+const STANDBY_OUTPUTS: u32 = 100;
+
+impl Swaps {
+    pub(super) fn open(bus: &Bus, dir: PathBuf, config: Option<PathBuf>, cascade: bool) -> Result<Self> {
+        Ok(Self {
+            handovers: Outlet::open(bus, service::HANDOVER)?,
+            events: Outlet::open(bus, service::SUPERVISOR_EVENTS)?,
+            valve: Reader::open(bus, service::VALVE, 256)?,
+            standby_position: Reader::open(bus, service::POSITION_STANDBY, 256)?,
+            standby_torque: Reader::open(bus, service::TORQUE_STANDBY, 256)?,
+            log: ValveLog::with_capacity(4096),
+            dir,
+            config,
+            cascade,
+            current: None,
+            handover_seq: 0,
+            event_seq: 0,
+        })
+    }
+
+    pub(super) fn tick(
+        &mut self,
+        scope: &RunScope,
+        children: &mut [Supervised],
+        request: Option<PendingCommand<SupervisorRequest, SupervisorReply>>,
+        reading: Option<u64>,
+        now: Instant,
+    ) -> Result<()> {
+        self.take_valve_samples()?;
+        let mut standby_outputs = 0;
+        while self.standby_position.next()?.is_some() {
+            standby_outputs += 1;
+        }
+        while self.standby_torque.next()?.is_some() {
+            standby_outputs += 1;
+        }
+        if let Some(request) = request {
+            match self.current {
+                Some(_) => reply(
+                    request,
+                    false,
+                    0,
+                    "a swap is already under way; try again when it is done",
+                )?,
+                None => self.begin(scope, children, request)?,
+            }
+        }
+        let Some(mut swap) = self.current.take() else {
+            return Ok(());
+        };
+        swap.standby_outputs += standby_outputs;
+        match swap.phase {
+            SwapPhase::Starting { since } => {
+                if swap.child.reap() {
+                    return self.fail(
+                        swap,
+                        "it exited while starting (its error is above, on the supervisor's stderr)",
+                    );
+                }
+                if now.saturating_duration_since(since) > Duration::from_secs(5) {
+                    swap.child.kill_hung();
+                    return self.fail(swap, "it gave no output within 5 s");
+                }
+                match reading {
+                    Some(seq) if swap.standby_outputs >= STANDBY_OUTPUTS => {
+                        let at_seq = seq + HANDOVER_LEAD;
+                        self.hand_over(
+                            swap.stage,
+                            at_seq,
+                            swap.child.pid().unwrap_or(0),
+                            code::variant_code(swap.to).unwrap_or(0),
+                        )?;
+                        swap.phase = SwapPhase::HandedOver { at_seq, since: now };
+                    }
+                    _ => {}
+                }
+                self.current = Some(swap);
+            }
+            SwapPhase::HandedOver { at_seq, since } => {
+                let judged = self.log.judge(at_seq, 20, 1000, 1000);
+                let timed_out = now.saturating_duration_since(since) > Duration::from_secs(5);
+                if judged.is_none() && !timed_out {
+                    self.current = Some(swap);
+                    return Ok(());
+                }
+                let quality = judged.unwrap_or(SwitchQuality {
+                    missed_cycles: 120,
+                    command_step: 1.0,
+                    loop_step_before: 0.0,
+                    loop_step_after: 0.0,
+                });
+                // The new process takes the old one's place: its restarts,
+                // its pid history; the old one has stopped answering.
+                let old = &mut children[swap.index];
+                swap.child.restarts = old.restarts;
+                swap.child.pids.splice(0..0, old.pids.iter().copied());
+                swap.child.last_output = now;
+                std::mem::swap(old, &mut swap.child);
+                swap.child.request_stop();
+                swap.child.finish_stop(now + Duration::from_secs(1));
+                self.publish_event(code::EVENT_SWAP, &swap, at_seq, quality)?;
+                let message = format!(
+                    "{} now runs {} (was {}) from reading {at_seq}: {} missed cycles, command step {:.2}% of its range (the loop's own steps: {:.2}% before, {:.2}% after)",
+                    code::stage_name(swap.stage),
+                    swap.to,
+                    swap.from,
+                    quality.missed_cycles,
+                    quality.command_step * 100.0,
+                    quality.loop_step_before * 100.0,
+                    quality.loop_step_after * 100.0
+                );
+                let from = code::variant_code(swap.from).unwrap_or(0);
+                swap.request.reply(SupervisorReply {
+                    command_step: quality.command_step,
+                    missed_cycles: quality.missed_cycles,
+                    accepted: 1,
+                    from_variant: from,
+                    message: fixed_name(&message),
+                })?;
+            }
+        }
+        Ok(())
+    }
+
+    fn begin(
+        &mut self,
+        scope: &RunScope,
+        children: &[Supervised],
+        request: PendingCommand<SupervisorRequest, SupervisorReply>,
+    ) -> Result<()> {
+        let asked = request.request();
+        let SwapTarget { index, name, to } = match swap_target(asked.stage, asked.variant, self.cascade) {
+            Ok(target) => target,
+            Err(why) => return reply(request, false, 0, &why),
+        };
+        let from = children[index].variant.unwrap_or("?");
+        if from == to {
+            return reply(
+                request,
+                false,
+                code::variant_code(from).unwrap_or(0),
+                &format!("{name} already runs {to}"),
+            );
+        }
+        if !children[index].is_running() {
+            return reply(
+                request,
+                false,
+                0,
+                &format!("{name} is not running (restarting?): try again"),
+            );
+        }
+        let mut child = Supervised::new(name, &self.dir, self.config.clone());
+        child.variant = Some(to);
+        if let Err(e) = child.spawn(scope, &["--standby".to_owned()]) {
+            return reply(
+                request,
+                false,
+                0,
+                &format!("cannot start the {to} {name} process: {e:#}"),
+            );
+        }
+        self.current = Some(SwapInProgress {
+            index,
+            stage: asked.stage,
+            from,
+            to,
+            child,
+            request,
+            standby_outputs: 0,
+            phase: SwapPhase::Starting { since: Instant::now() },
+        });
+        Ok(())
+    }
+
+    /// Names the process that answers `stage` from reading `at_seq` on.
+    pub(super) fn hand_over(&mut self, stage: u32, at_seq: u64, new_pid: u32, variant: u32) -> Result<()> {
+        self.handovers.publish(Handover {
+            seq: self.handover_seq,
+            stage_time_ns: clock::now_ns(),
+            at_seq,
+            new_pid,
+            stage,
+            variant,
+            reserved: 0,
+        })?;
+        self.handover_seq += 1;
+        Ok(())
+    }
+
+    /// The running controller stays in charge; the caller hears why.
+    fn fail(&mut self, swap: SwapInProgress, why: &str) -> Result<()> {
+        let quality = SwitchQuality {
+            missed_cycles: 0,
+            command_step: 0.0,
+            loop_step_before: 0.0,
+            loop_step_after: 0.0,
+        };
+        self.publish_event(code::EVENT_SWAP_FAILED, &swap, 0, quality)?;
+        let message = format!(
+            "the {} {} process did not take over, {why}; {} stays in charge",
+            swap.to,
+            code::stage_name(swap.stage),
+            swap.from
+        );
+        reply(
+            swap.request,
+            false,
+            code::variant_code(swap.from).unwrap_or(0),
+            &message,
+        )
+    }
+
+    /// Moves the valve's waiting samples into the log.
+    fn take_valve_samples(&mut self) -> Result<()> {
+        while let Some(v) = self.valve.next()? {
+            self.log.push(v.sensor_seq, v.command, v.faults);
+        }
+        Ok(())
+    }
+
+    /// A fault's account, once its process answers again: how long the
+    /// detection, the valve's going safe and the restart took.
+    pub(super) fn publish_fault(&mut self, process: &str, fault: Fault, back_at: Option<Instant>) -> Result<()> {
+        // The valve's samples up to now, not up to the last tick: a tick
+        // that came late (the supervisor shares its CPU with the recorder
+        // and everything else) must not hide the valve's going safe.
+        self.take_valve_samples()?;
+        let valve_safe = fault
+            .last_seq
+            .and_then(|seq| self.log.valve_safe_after_periods(seq))
+            .unwrap_or(u64::MAX);
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: fault.last_seq.unwrap_or(0),
+            valve_safe_after_periods: valve_safe,
+            detected_after_ns: fault.silent_for.as_nanos() as u64,
+            restarted_after_ns: back_at.map_or(u64::MAX, |at| {
+                at.saturating_duration_since(fault.detected_at).as_nanos() as u64
+            }),
+            kind: fault.kind,
+            pid: fault.pid,
+            process: fixed_name(process),
+            from: fixed_name(fault.variants.map_or("", |v| v.0)),
+            to: fixed_name(fault.variants.map_or("", |v| v.1)),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
+    }
+
+    /// The plant seat changed: fallback or asked for.
+    pub(super) fn publish_plant_event(
+        &mut self,
+        kind: u32,
+        at_seq: u64,
+        detected_after: Duration,
+        process: &str,
+        (from, to): (&str, &str),
+        pid: u32,
+    ) -> Result<()> {
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: at_seq,
+            valve_safe_after_periods: u64::MAX,
+            detected_after_ns: detected_after.as_nanos() as u64,
+            restarted_after_ns: u64::MAX,
+            kind,
+            pid,
+            process: fixed_name(process),
+            from: fixed_name(from),
+            to: fixed_name(to),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
+    }
+
+    fn publish_event(&mut self, kind: u32, swap: &SwapInProgress, at_seq: u64, quality: SwitchQuality) -> Result<()> {
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: at_seq,
+            missed_cycles: quality.missed_cycles,
+            command_step: quality.command_step,
+            loop_step_before: quality.loop_step_before,
+            loop_step_after: quality.loop_step_after,
+            kind,
+            pid: swap.child.pid().unwrap_or(0),
+            process: fixed_name(code::stage_name(swap.stage)),
+            from: fixed_name(swap.from),
+            to: fixed_name(swap.to),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
+    }
+}
+
+pub(super) fn reply(
+    request: PendingCommand<SupervisorRequest, SupervisorReply>,
+    accepted: bool,
+    from_variant: u32,
+    message: &str,
+) -> Result<()> {
+    Ok(request.reply(SupervisorReply {
+        accepted: u32::from(accepted),
+        from_variant,
+        message: fixed_name(message),
+        ..SupervisorReply::default()
+    })?)
+}
+
+/// The controller a swap request names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct SwapTarget {
+    /// Its place in the pipeline.
+    index: usize,
+    name: &'static str,
+    /// The variant asked for.
+    to: &'static str,
+}
+
+/// What a swap request asks for, or why it cannot be done: a stage that
+/// has no variants, a variant the stage does not have, or the torque stage
+/// when it is bypassed (position-only control).
+fn swap_target(stage: u32, variant: u32, cascade: bool) -> Result<SwapTarget, String> {
+    let (index, name) = match stage {
+        code::STAGE_POSITION => (3, "position"),
+        code::STAGE_TORQUE => (4, "torque"),
+        other => return Err(format!("no stage {other}: swap `position` or `torque`")),
+    };
+    let to = match (stage, code::variant_name(variant)) {
+        (code::STAGE_POSITION, v @ ("pid" | "mfc")) => v,
+        (code::STAGE_TORQUE, v @ ("pid" | "hinf")) => v,
+        (_, v) => {
+            let allowed = if stage == code::STAGE_POSITION {
+                "pid or mfc"
+            } else {
+                "pid or hinf"
+            };
+            return Err(format!("{name} has no variant `{v}`: {allowed}"));
+        }
+    };
+    if stage == code::STAGE_TORQUE && !cascade {
+        return Err("the torque stage is bypassed in position-only control: nothing to swap".to_owned());
+    }
+    Ok(SwapTarget { index, name, to })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn variant(name: &str) -> u32 {
+        code::variant_code(name).expect("a variant")
+    }
+
+    #[test]
+    fn a_swap_names_a_stage_with_variants_and_one_of_its_variants() {
+        assert_eq!(
+            swap_target(code::STAGE_POSITION, variant("mfc"), false),
+            Ok(SwapTarget {
+                index: 3,
+                name: "position",
+                to: "mfc"
+            })
+        );
+        assert_eq!(
+            swap_target(code::STAGE_TORQUE, variant("hinf"), true),
+            Ok(SwapTarget {
+                index: 4,
+                name: "torque",
+                to: "hinf"
+            })
+        );
+        let refused = |stage, v, cascade| swap_target(stage, v, cascade).expect_err("refused");
+        assert!(refused(code::STAGE_POSITION, variant("hinf"), true).contains("position has no variant `hinf`"));
+        assert!(refused(code::STAGE_TORQUE, variant("mfc"), true).contains("pid or hinf"));
+        assert!(refused(code::STAGE_TORQUE, variant("pid"), false).contains("bypassed"));
+        assert!(refused(code::STAGE_PLANT, variant("pid"), true).contains("swap `position` or `torque`"));
+    }
+}
