@@ -38,6 +38,10 @@ pub enum BusError {
     InvalidPrefix(String),
     #[error("cannot remove {path}: {source}")]
     Cleanup { path: String, source: std::io::Error },
+    #[error(
+        "no permission for {path}, owned by {owner}: another user's run left it; run as {owner}, remove it as root, or set HYDRACTL_IPC_PREFIX to another prefix"
+    )]
+    Permission { path: String, owner: String },
 }
 
 impl BusError {

@@ -115,10 +115,10 @@ impl RunScope {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(source) => {
-                return Err(BusError::Cleanup {
+                return Err(self.permission_problem().unwrap_or(BusError::Cleanup {
                     path: root.display().to_string(),
                     source,
-                })
+                }))
             }
         }
         for path in self.shm_files() {
@@ -126,10 +126,10 @@ impl RunScope {
                 Ok(()) => {}
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
                 Err(source) => {
-                    return Err(BusError::Cleanup {
+                    return Err(self.permission_problem().unwrap_or(BusError::Cleanup {
                         path: path.display().to_string(),
                         source,
-                    })
+                    }))
                 }
             }
         }
@@ -179,9 +179,49 @@ impl RunScope {
         .map_err(|e| BusError::ipc("listing nodes", e))
     }
 
+    /// The first of this run's files that this user may not both read and
+    /// write (iceoryx2 needs both), as a [`BusError::Permission`] naming the
+    /// file and its owner.
+    pub fn permission_problem(&self) -> Option<BusError> {
+        use nix::unistd::{access, AccessFlags};
+        let mut files = self.shm_files();
+        let mut folders = vec![self.root()];
+        while let Some(folder) = folders.pop() {
+            files.push(folder.clone());
+            for entry in std::fs::read_dir(&folder).into_iter().flatten().flatten() {
+                let path = entry.path();
+                if path.is_dir() {
+                    folders.push(path);
+                } else {
+                    files.push(path);
+                }
+            }
+        }
+        files
+            .into_iter()
+            .filter(|path| path.exists())
+            .find(|path| access(path.as_path(), AccessFlags::R_OK | AccessFlags::W_OK).is_err())
+            .map(|path| BusError::Permission {
+                owner: owner_of(&path),
+                path: path.display().to_string(),
+            })
+    }
+
     /// Whether anything of this run is left on disk.
     pub fn has_files(&self) -> bool {
         self.root().exists() || !self.shm_files().is_empty()
+    }
+}
+
+/// The user name (or uid) owning `path`.
+fn owner_of(path: &std::path::Path) -> String {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(uid) = std::fs::metadata(path).map(|m| m.uid()) else {
+        return "an unknown user".to_owned();
+    };
+    match nix::unistd::User::from_uid(nix::unistd::Uid::from_raw(uid)) {
+        Ok(Some(user)) => format!("{} (uid {uid})", user.name),
+        _ => format!("uid {uid}"),
     }
 }
 
@@ -208,7 +248,11 @@ impl Bus {
             .name(&NodeName::new(name).map_err(|e| BusError::ipc("node name", e))?)
             .config(&config)
             .create::<ipc::Service>()
-            .map_err(|e| BusError::ipc(format!("creating node {name}"), e))?;
+            .map_err(|e| {
+                scope
+                    .permission_problem()
+                    .unwrap_or_else(|| BusError::ipc(format!("creating node {name}"), e))
+            })?;
         let bus = Self {
             node,
             scope: scope.clone(),

@@ -21,6 +21,8 @@ pub struct SwapArgs {
 
 #[derive(clap::Args)]
 pub struct StatusArgs {
+    /// Print JSON: {"running", "plant", "processes": [{"name", "pid", "variant", "healthy", "restarts"}]};
+    /// with no run alive, {"running": false} (and exit status 1).
     #[arg(long)]
     json: bool,
 }
@@ -115,13 +117,22 @@ struct ProcessView {
 
 #[derive(Serialize)]
 struct StatusView {
+    running: bool,
     plant: &'static str,
     processes: Vec<ProcessView>,
 }
 
 /// The supervisor's view of the running stack.
 pub fn status(args: StatusArgs) -> Result<()> {
-    let bus = open_run("status")?;
+    let bus = match open_run("status") {
+        Ok(bus) => bus,
+        Err(e) => {
+            if args.json {
+                crate::emit("{\n  \"running\": false\n}\n")?;
+            }
+            return Err(e);
+        }
+    };
     let reader: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 1)?;
     let deadline = Instant::now() + Duration::from_secs(2);
     let status = loop {
@@ -134,6 +145,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
         std::thread::sleep(Duration::from_millis(10));
     };
     let view = StatusView {
+        running: true,
         plant: if status.plant_is_simulation != 0 {
             "simulation"
         } else {
@@ -153,8 +165,13 @@ pub fn status(args: StatusArgs) -> Result<()> {
     if args.json {
         return crate::emit(&(serde_json::to_string_pretty(&view)? + "\n"));
     }
+    // A machine in the run (in charge or in standby): the simulated plant
+    // in charge is worth a warning. Without one it is simply the plant.
+    let machine_expected = view.processes.iter().any(|p| p.name == "machine");
     let mut text = match view.plant {
-        "simulation" => "plant: SIMULATION (the loop drives the simulated plant, not the machine)\n".to_owned(),
+        "simulation" if machine_expected => {
+            "plant: SIMULATION (the loop drives the simulated plant, not the machine)\n".to_owned()
+        }
         other => format!("plant: {other}\n"),
     };
     text += &format!(

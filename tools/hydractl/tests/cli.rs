@@ -476,3 +476,57 @@ fn ident_mech_friction_map_spectrum_and_pid_iae_on_the_simulated_rotator() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("one gain per run"));
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_run_too_long_to_simulate_is_refused_before_it_starts() {
+    let started = std::time::Instant::now();
+    let out = hydractl().args(["sim", "--duration", "1e9"]).output().expect("runs");
+    assert_eq!(out.status.code(), Some(1), "a failure, not a crash");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("1000000000") && err.contains("simulated days"), "{err}");
+    // Refused at once, not after allocating or simulating anything.
+    assert!(started.elapsed() < std::time::Duration::from_secs(5));
+}
+
+#[test]
+fn exit_status_is_0_on_success_1_on_failure_2_on_usage() {
+    assert_eq!(hydractl().arg("effects").output().expect("runs").status.code(), Some(0));
+    let usage = hydractl().args(["sim", "--no-such-flag"]).output().expect("runs");
+    assert_eq!(usage.status.code(), Some(2));
+    let failure = hydractl()
+        .args(["sim", "--duration", "1", "--config", "/no/such/config.toml"])
+        .output()
+        .expect("runs");
+    assert_eq!(failure.status.code(), Some(1));
+}
+
+#[test]
+fn run_checks_where_its_results_go_before_it_starts() {
+    let dir = scratch("run-paths");
+    for (flag, file) in [("--summary-json", "summary.json"), ("--record", "run.mcap")] {
+        let missing = dir.join("no-such-folder").join(file);
+        let out = hydractl()
+            .env("HYDRACTL_IPC_PREFIX", format!("c{}_paths_", std::process::id()))
+            .args(["run", "--duration", "1", flag])
+            .arg(&missing)
+            .output()
+            .expect("runs");
+        assert_eq!(out.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && err.contains("does not exist"), "{err}");
+        assert!(!err.contains("cycles"), "refused before the run: {err}");
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn status_json_says_no_run_is_alive() {
+    let out = hydractl()
+        .env("HYDRACTL_IPC_PREFIX", format!("c{}_nostatus_", std::process::id()))
+        .args(["status", "--json"])
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(1));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+    assert_eq!(json["running"], false);
+}

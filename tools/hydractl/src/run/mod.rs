@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, RunScope, PREFIX_ENV};
+use hydractl_config::Config;
 use hydractl_samples::{
     code, name_str, service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent,
     SupervisorStatus, ValveSample,
@@ -15,6 +16,10 @@ use hydractl_samples::{
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 use serde::Serialize;
+
+mod monitor;
+
+use monitor::{merge_status, LatencyHistogram, LiveLine, Tracking};
 
 #[derive(clap::Args)]
 pub struct RunArgs {
@@ -32,59 +37,6 @@ pub struct RunArgs {
     record: Option<PathBuf>,
     #[command(flatten)]
     split: hydractl_processes::SplitArgs,
-}
-
-/// Sensor-to-valve latency, counted in 1 µs bins up to 100 ms: fixed
-/// memory however long the run.
-struct LatencyHistogram {
-    bins: Vec<u64>,
-    count: u64,
-    max_ns: u64,
-}
-
-impl LatencyHistogram {
-    const BINS: usize = 100_000;
-
-    fn new() -> Self {
-        Self {
-            bins: vec![0; Self::BINS + 1],
-            count: 0,
-            max_ns: 0,
-        }
-    }
-
-    fn record_between(&mut self, from_ns: u64, to_ns: u64) {
-        let ns = to_ns.saturating_sub(from_ns);
-        let us = (ns / 1000) as usize;
-        self.bins[us.min(Self::BINS)] += 1;
-        self.count += 1;
-        self.max_ns = self.max_ns.max(ns);
-    }
-
-    fn summary(&self) -> LatencySummary {
-        LatencySummary {
-            p50: self.quantile_us(0.5),
-            p99: self.quantile_us(0.99),
-            p999: self.quantile_us(0.999),
-            max: self.max_ns as f64 / 1000.0,
-        }
-    }
-
-    /// The quantile in µs (upper edge of its bin).
-    fn quantile_us(&self, q: f64) -> f64 {
-        if self.count == 0 {
-            return f64::NAN;
-        }
-        let target = ((q * self.count as f64).ceil() as u64).max(1);
-        let mut seen = 0;
-        for (us, &n) in self.bins.iter().enumerate() {
-            seen += n;
-            if seen >= target {
-                return (us + 1) as f64;
-            }
-        }
-        self.max_ns as f64 / 1000.0
-    }
 }
 
 #[derive(Serialize)]
@@ -207,20 +159,20 @@ struct SwapSummary {
     loop_step_after: f64,
 }
 
-#[derive(Default)]
-struct Tracking {
-    count: u64,
-    sum_squares: f64,
-    max_abs: f64,
-}
-
 pub fn run(args: RunArgs) -> Result<()> {
     if let Some(d) = args.duration {
         if !(d.is_finite() && d >= 0.0) {
             bail!("--duration must be a finite number of seconds, got {d}");
         }
     }
-    let config = hydractl_config::Config::load_or_default(args.config.as_deref())?;
+    // A run's results must have somewhere to go before the run starts.
+    if let Some(path) = &args.summary_json {
+        check_writable(path, "--summary-json")?;
+    }
+    if let Some(path) = &args.record {
+        check_writable(path, "--record")?;
+    }
+    let config = Config::load_or_default(args.config.as_deref())?;
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
         eprintln!("{e}");
     }
@@ -254,7 +206,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         .spawn()
         .with_context(|| format!("starting {}", dir.join("supervisor").display()))?;
     let supervisor_pid = supervisor.id();
-    let outcome = watch(&scope, &args, supervisor_pid);
+    let outcome = watch(&scope, &args, &config, supervisor_pid);
     // The supervisor stops the loop, then lets the recorder finish its file.
     stop_child(&mut supervisor, "the supervisor", Duration::from_secs(15))?;
     let mut summary = outcome?;
@@ -298,7 +250,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     ))
 }
 
-fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSummary> {
+fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Result<RunSummary> {
     let bus = Bus::open(scope, "monitor")?;
     let valve: Reader<ValveSample> = Reader::open(&bus, service::VALVE, 256)?;
     let position: Reader<PositionSample> = Reader::open(&bus, service::POSITION, 256)?;
@@ -307,12 +259,14 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     let started = Instant::now();
     let end = args.duration.map(|d| started + Duration::from_secs_f64(d.max(0.0)));
     let live = std::io::stderr().is_terminal();
+    eprintln!("{}", LiveLine::header(config.machine.is_some()));
     // From the reading to each stage's output; the valve's is the
     // sensor-to-valve latency.
     let mut by_stage: [LatencyHistogram; STAGES.len()] = std::array::from_fn(|_| LatencyHistogram::new());
     let sensor: Reader<SensorSample> = Reader::open(&bus, service::SENSOR, 256)?;
     let friction: Reader<FrictionSample> = Reader::open(&bus, service::FRICTION, 256)?;
-    let mut tracking = Tracking::default();
+    let mut tracking = Tracking::new(config.timing.control_rate_hz.round() as usize);
+    let machine_expected = config.machine.is_some();
     let mut cycles = 0u64;
     let mut faults = 0u64;
     let mut late = 0u64;
@@ -324,7 +278,6 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
     }];
     let mut last_print = Instant::now();
     let mut cycles_at_last_print = 0u64;
-    let (mut outer_variant, mut inner_variant) = ("?", "?");
     let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 256)?;
     let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
     let (mut swaps, mut swap_failures, mut faults_seen) = (Vec::new(), Vec::new(), Vec::new());
@@ -358,14 +311,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
             }
             while let Some(p) = position.next()? {
                 by_stage[2].record_between(p.sensor_time_ns, p.stage_time_ns);
-                outer_variant = code::variant_name(p.variant);
-                if p.structure == hydractl_samples::code::STRUCTURE_POSITION {
-                    inner_variant = "bypassed";
-                }
                 let e = p.reference_angle - p.angle;
-                tracking.count += 1;
-                tracking.sum_squares += e * e;
-                tracking.max_abs = tracking.max_abs.max(e.abs());
+                tracking.push(e);
             }
             if let Some(p) = plant.latest()? {
                 late_by_source[usize::from(p.source == hydractl_samples::source::MACHINE)] = p.late_commands;
@@ -373,9 +320,6 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
             }
             while let Some(t) = torque.next()? {
                 by_stage[3].record_between(t.sensor_time_ns, t.stage_time_ns);
-                if inner_variant != "bypassed" {
-                    inner_variant = code::variant_name(t.variant);
-                }
             }
             if let Some(s) = status.latest()? {
                 merge_status(&mut processes, &s);
@@ -439,24 +383,17 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                     (cycles - cycles_at_last_print) as f64 / now.saturating_duration_since(last_print).as_secs_f64();
                 last_print = now;
                 cycles_at_last_print = cycles;
-                let line = format!(
-                    "t {:6.1} s  plant {}  loop {:6.0} Hz  misses {}  latency p50 {:4} µs p99 {:4} µs  error rms {:.4} max {:.4} rad  position {} torque {}  restarts: {}",
-                    now.saturating_duration_since(started).as_secs_f64(),
-                    if on_simulation { "SIMULATION" } else { "machine" },
-                    rate,
-                    late,
-                    by_stage[VALVE_STAGE].quantile_us(0.5),
-                    by_stage[VALVE_STAGE].quantile_us(0.99),
-                    (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
-                    tracking.max_abs,
-                    outer_variant,
-                    inner_variant,
-                    processes
-                        .iter()
-                        .map(|p| format!("{} {}", p.name, p.restarts))
-                        .collect::<Vec<_>>()
-                        .join(" ")
-                );
+                let line = LiveLine {
+                    elapsed_s: now.saturating_duration_since(started).as_secs_f64(),
+                    loop_hz: rate,
+                    misses: late,
+                    p99_us: by_stage[VALVE_STAGE].quantile_us(0.99),
+                    last_second: tracking.last_second(),
+                    since_start: tracking.since_start(),
+                    restarts: processes.iter().map(|p| p.restarts).sum(),
+                    on_simulation: machine_expected.then_some(on_simulation),
+                }
+                .render();
                 if live {
                     eprint!("\r{line}");
                 } else {
@@ -498,8 +435,8 @@ fn watch(scope: &RunScope, args: &RunArgs, supervisor_pid: u32) -> Result<RunSum
                 from_reading: h.summary(),
             })
             .collect(),
-        max_abs_tracking_error_rad: tracking.max_abs,
-        rms_tracking_error_rad: (tracking.sum_squares / tracking.count.max(1) as f64).sqrt(),
+        max_abs_tracking_error_rad: tracking.since_start().max_abs,
+        rms_tracking_error_rad: tracking.since_start().rms,
         valve_fault_cycles: faults,
         processes,
         faults: faults_seen,
@@ -566,30 +503,27 @@ fn recording_report(out: &Path, split: &hydractl_processes::SplitArgs) -> Result
     Ok(report)
 }
 
-/// Adds newly seen pids and the restart counts from a status sample.
-fn merge_status(processes: &mut Vec<ProcessSummary>, status: &SupervisorStatus) {
-    for entry in status.processes.iter().take(status.process_count as usize) {
-        let name = name_str(&entry.name);
-        if name == "supervisor" {
-            continue;
-        }
-        let index = match processes.iter().position(|p| p.name == name) {
-            Some(i) => i,
-            None => {
-                processes.push(ProcessSummary {
-                    name: name.to_owned(),
-                    pids: Vec::new(),
-                    restarts: 0,
-                });
-                processes.len() - 1
-            }
-        };
-        let p = &mut processes[index];
-        if entry.pid != 0 && p.pids.last() != Some(&entry.pid) {
-            p.pids.push(entry.pid);
-        }
-        p.restarts = entry.restarts;
+/// Whether a file can be written at `path`, without creating it: its
+/// folder exists and takes a new file, and it is not itself a folder.
+fn check_writable(path: &Path, flag: &str) -> Result<()> {
+    if path.is_dir() {
+        bail!("{flag} {}: is a folder, not a file", path.display());
     }
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        bail!("{flag} {}: the folder {} does not exist", path.display(), dir.display());
+    }
+    let probe = dir.join(format!(".hydractl-write-check-{}", std::process::id()));
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .with_context(|| format!("{flag} {}: cannot write in {}", path.display(), dir.display()))?;
+    std::fs::remove_file(&probe).with_context(|| format!("removing {}", probe.display()))?;
+    Ok(())
 }
 
 /// SIGTERM, then SIGKILL if `child` has not stopped within `grace`.
