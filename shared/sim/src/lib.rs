@@ -4,4 +4,7 @@
 pub mod metrics;
 pub mod simulator;
 
-pub use simulator::{build_plant, simulate, simulate_valve_steps, write_csv, Record, SimError, SimulationRun, Summary};
+pub use simulator::{
+    build_plant, simulate, simulate_streaming, simulate_valve_steps, write_csv, CsvRows, Record, SimError,
+    SimulationRun, Summary, MAX_CYCLES, MAX_KEPT_CYCLES,
+};

@@ -19,6 +19,16 @@ pub enum SimError {
     Stack(#[from] StackError),
     #[error("duration must be positive and finite, got {0}")]
     Duration(f64),
+    #[error(
+        "a duration of {duration} s is {cycles} control periods, more than the {max} ({max_days:.1} simulated days) one run may take{why}"
+    )]
+    TooLong {
+        duration: f64,
+        cycles: f64,
+        max: u64,
+        max_days: f64,
+        why: &'static str,
+    },
     #[error("cannot write {path}: {source}")]
     Write { path: String, source: csv::Error },
     #[error("cannot write {path}: {source}")]
@@ -92,8 +102,6 @@ pub fn build_plant(config: &Config, extra_effects: &[Effect]) -> Result<(Plant, 
     Ok((plant, sensor))
 }
 
-const MAX_OPEN_LOOP_ROWS: usize = 86_400_000;
-
 /// The crane paper's friction experiment, open loop: each command of
 /// `levels` held on the valve for `dwell_s`, the plant and sensors as
 /// configured. The records' reference and controller columns are zero.
@@ -109,11 +117,13 @@ pub fn simulate_valve_steps(
     let (mut plant, mut sensor) = build_plant(config, extra_effects)?;
     let period = config.timing.control_period();
     let substeps = config.timing.substeps();
-    let per_level = (dwell_s / period).round() as usize;
-    // A day of 1 kHz rows at most: beyond that the request is a typo.
-    if per_level.saturating_mul(levels.len()) > MAX_OPEN_LOOP_ROWS {
-        return Err(SimError::Duration(dwell_s * levels.len() as f64));
-    }
+    let per_level = cycles_of(
+        config,
+        dwell_s * levels.len().max(1) as f64,
+        MAX_KEPT_CYCLES,
+        " with its rows kept in memory",
+    )? as usize
+        / levels.len().max(1);
     let mut records = Vec::with_capacity(per_level * levels.len());
     for &command in levels {
         let command = command.clamp(-1.0, 1.0);
@@ -139,17 +149,66 @@ pub fn simulate_valve_steps(
     Ok(records)
 }
 
-/// Runs the closed loop for `duration` seconds and keeps every period.
-pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Result<SimulationRun, SimError> {
+/// The most control periods one streamed run may take: about 11.6
+/// simulated days at 1 kHz, hours of computing.
+pub const MAX_CYCLES: u64 = 1_000_000_000;
+/// The most periods a run whose rows are kept in memory may take: an hour
+/// at 1 kHz, about 430 MB of rows.
+pub const MAX_KEPT_CYCLES: u64 = 3_600_000;
+
+/// The control periods in `duration` seconds, or why they cannot be run:
+/// not a positive duration, or more than `max` periods.
+fn cycles_of(config: &Config, duration: f64, max: u64, why: &'static str) -> Result<u64, SimError> {
     if !(duration.is_finite() && duration > 0.0) {
         return Err(SimError::Duration(duration));
     }
+    let period = config.timing.control_period();
+    let cycles = (duration / period).round();
+    if cycles > max as f64 {
+        return Err(SimError::TooLong {
+            duration,
+            cycles,
+            max,
+            max_days: max as f64 * period / 86_400.0,
+            why,
+        });
+    }
+    Ok(cycles as u64)
+}
+
+/// Runs the closed loop for `duration` seconds and keeps every period
+/// (at most [`MAX_KEPT_CYCLES`]; [`simulate_streaming`] keeps none).
+pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Result<SimulationRun, SimError> {
+    let cycles = cycles_of(
+        config,
+        duration,
+        MAX_KEPT_CYCLES,
+        " with its rows kept in memory; `hydractl sim` streams longer runs to its CSV",
+    )?;
+    let mut records = Vec::with_capacity(cycles as usize);
+    let summary = simulate_streaming(config, extra_effects, duration, |r| {
+        records.push(*r);
+        Ok(())
+    })?;
+    Ok(SimulationRun { records, summary })
+}
+
+/// Runs the closed loop for `duration` seconds, handing each period's row
+/// to `each` as it goes and keeping none: memory does not grow with the
+/// duration. The summary's metrics are accumulated as the rows go by.
+pub fn simulate_streaming(
+    config: &Config,
+    extra_effects: &[Effect],
+    duration: f64,
+    mut each: impl FnMut(&Record) -> Result<(), SimError>,
+) -> Result<Summary, SimError> {
+    let cycles = cycles_of(config, duration, MAX_CYCLES, "")?;
     let (mut plant, mut sensor) = build_plant(config, extra_effects)?;
     let mut stack = ControlStack::new(config)?;
     let period = config.timing.control_period();
     let substeps = config.timing.substeps();
-    let cycles = (duration / period).round() as usize;
-    let mut records = Vec::with_capacity(cycles);
+    let (mut sum_squares, mut max_abs_error) = (0.0, 0.0f64);
+    let mut torque_power = metrics::PowerAbove::new(period, 10.0);
 
     let started = Instant::now();
     for k in 0..cycles {
@@ -157,7 +216,7 @@ pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Res
         let state = plant.state();
         let raw = sensor.read(&state);
         let out = stack.step(time, &raw);
-        records.push(Record {
+        let record = Record {
             t: time,
             u: out.command,
             p_a: raw.p_a * 1e-5,
@@ -173,15 +232,17 @@ pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Res
             omega_true: state.velocity,
             theta_load: state.load_angle,
             spool: state.spool,
-        });
+        };
+        let error = record.theta_ref - record.theta;
+        sum_squares += error * error;
+        max_abs_error = max_abs_error.max(error.abs());
+        torque_power.push(record.torque);
+        each(&record)?;
         plant.advance(out.command, substeps);
     }
     let wall_seconds = started.elapsed().as_secs_f64();
-
-    let errors: Vec<f64> = records.iter().map(|r| r.theta_ref - r.theta).collect();
-    let torque: Vec<f64> = records.iter().map(|r| r.torque).collect();
     let sim_seconds = cycles as f64 * period;
-    let summary = Summary {
+    Ok(Summary {
         structure: config.control.structure.name(),
         position_variant: format!("{:?}", config.control.outer().variant).to_lowercase(),
         torque_variant: match config.control.structure {
@@ -190,46 +251,61 @@ pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Res
         },
         seed: config.simulation.seed,
         effects: plant.effects().list().iter().map(|e| e.to_string()).collect(),
-        cycles: cycles as u64,
-        max_abs_tracking_error_rad: metrics::max_abs(&errors),
-        rms_tracking_error_rad: metrics::rms(&errors),
-        torque_power_above_10_rad_s: metrics::power_above(&torque, period, 10.0),
+        cycles,
+        max_abs_tracking_error_rad: max_abs_error,
+        rms_tracking_error_rad: (sum_squares / cycles.max(1) as f64).sqrt(),
+        torque_power_above_10_rad_s: torque_power.finish(),
         sim_seconds,
         wall_seconds,
         real_time_factor: sim_seconds / wall_seconds.max(1e-12),
-    };
-    Ok(SimulationRun { records, summary })
+    })
 }
 
-/// Writes the records as CSV; `torque_ref` is empty where there is none.
-pub fn write_csv(records: &[Record], path: &Path) -> Result<(), SimError> {
-    let name = path.display().to_string();
-    let wrap = |source| SimError::Write {
-        path: name.clone(),
-        source,
-    };
-    let mut writer = csv::Writer::from_path(path).map_err(wrap)?;
-    writer
-        .write_record([
-            "t",
-            "u",
-            "p_a",
-            "p_b",
-            "theta",
-            "theta_ref",
-            "omega_ref",
-            "omega_est",
-            "torque",
-            "torque_ref",
-            "friction_comp",
-            "theta_true",
-            "omega_true",
-            "theta_load",
-            "spool",
-        ])
-        .map_err(wrap)?;
-    let mut fields: [String; 15] = Default::default();
-    for r in records {
+/// Rows written to a CSV file one by one: the header first, then a row
+/// per [`Record`]; `torque_ref` is empty where there is none.
+pub struct CsvRows {
+    writer: csv::Writer<std::fs::File>,
+    fields: [String; 15],
+    path: String,
+}
+
+impl CsvRows {
+    pub fn create(path: &Path) -> Result<Self, SimError> {
+        let name = path.display().to_string();
+        let mut writer = csv::Writer::from_path(path).map_err(|source| SimError::Write {
+            path: name.clone(),
+            source,
+        })?;
+        writer
+            .write_record([
+                "t",
+                "u",
+                "p_a",
+                "p_b",
+                "theta",
+                "theta_ref",
+                "omega_ref",
+                "omega_est",
+                "torque",
+                "torque_ref",
+                "friction_comp",
+                "theta_true",
+                "omega_true",
+                "theta_load",
+                "spool",
+            ])
+            .map_err(|source| SimError::Write {
+                path: name.clone(),
+                source,
+            })?;
+        Ok(Self {
+            writer,
+            fields: Default::default(),
+            path: name,
+        })
+    }
+
+    pub fn write(&mut self, r: &Record) -> Result<(), SimError> {
         let values = [
             r.t,
             r.u,
@@ -247,15 +323,34 @@ pub fn write_csv(records: &[Record], path: &Path) -> Result<(), SimError> {
             r.theta_load,
             r.spool,
         ];
-        for (field, value) in fields.iter_mut().zip(values) {
+        for (field, value) in self.fields.iter_mut().zip(values) {
             field.clear();
             if value.is_finite() {
                 use std::fmt::Write;
                 let _ = write!(field, "{value}");
             }
         }
-        writer.write_record(&fields).map_err(wrap)?;
+        self.writer
+            .write_record(&self.fields)
+            .map_err(|source| SimError::Write {
+                path: self.path.clone(),
+                source,
+            })
     }
-    writer.flush().map_err(|source| SimError::Io { path: name, source })?;
-    Ok(())
+
+    pub fn finish(mut self) -> Result<(), SimError> {
+        self.writer.flush().map_err(|source| SimError::Io {
+            path: self.path,
+            source,
+        })
+    }
+}
+
+/// Writes the records as CSV.
+pub fn write_csv(records: &[Record], path: &Path) -> Result<(), SimError> {
+    let mut rows = CsvRows::create(path)?;
+    for r in records {
+        rows.write(r)?;
+    }
+    rows.finish()
 }

@@ -12,9 +12,14 @@ fn default_config(structure: Structure) -> Config {
 }
 
 #[test]
-fn the_cascade_halves_the_tracking_error_and_smooths_the_torque() {
+fn the_cascade_halves_the_tracking_error() {
     // The rotary paper: position-only (MFC) control tracked to 0.15 rad, the
-    // cascade to 0.05 rad, with a smoother torque.
+    // cascade to 0.05 rad, with a smoother torque. The smoother torque is
+    // not reproduced: measured with Hann-windowed blocks, the cascade's
+    // torque has more power above 10 rad/s than position-only control's
+    // (6.2 against 4.7 (N·m)² over 60 s); a rectangular periodogram of the
+    // whole run said the opposite (28 against 73) only through the leakage
+    // of the large low-frequency torque.
     let position = simulate(&default_config(Structure::Position), &[], 60.0).expect("runs");
     let cascade = simulate(&default_config(Structure::Cascade), &[], 60.0).expect("runs");
     let (p, c) = (&position.summary, &cascade.summary);
@@ -25,10 +30,9 @@ fn the_cascade_halves_the_tracking_error_and_smooths_the_torque() {
         p.max_abs_tracking_error_rad
     );
     assert!(
-        c.torque_power_above_10_rad_s < p.torque_power_above_10_rad_s,
-        "torque power above 10 rad/s: cascade {} vs position-only {}",
-        c.torque_power_above_10_rad_s,
-        p.torque_power_above_10_rad_s
+        c.torque_power_above_10_rad_s.is_finite() && c.torque_power_above_10_rad_s > 0.0,
+        "the torque's fast content is measured: {}",
+        c.torque_power_above_10_rad_s
     );
     // Both actually track: a broken loop must not pass by being "smooth".
     assert!(c.rms_tracking_error_rad < 0.02 && p.rms_tracking_error_rad < 0.05);

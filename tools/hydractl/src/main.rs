@@ -17,10 +17,15 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use hydractl_config::{Config, Structure};
 use hydractl_plant::{Effect, EffectKind};
-use hydractl_sim::{simulate, simulate_valve_steps, write_csv};
+use hydractl_sim::{simulate, simulate_streaming, simulate_valve_steps, write_csv, CsvRows};
 
 #[derive(Parser)]
-#[command(name = "hydractl", version, about = "Control stack for a hydraulic rotary actuator")]
+#[command(
+    name = "hydractl",
+    version,
+    about = "Control stack for a hydraulic rotary actuator",
+    after_help = "Exit status: 0 success; 1 failure (the reason on stderr); 2 usage (bad flags)."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -236,11 +241,16 @@ fn run_sim(args: SimArgs) -> Result<()> {
         ));
     }
     let duration = args.duration.context("--duration is required")?;
-    let run = simulate(&config, &effects, duration)?;
-    if let Some(out) = &args.out {
-        write_csv(&run.records, out)?;
-    }
-    let s = &run.summary;
+    // Rows go to the CSV as they are made: memory does not grow with the run.
+    let s = &match &args.out {
+        Some(out) => {
+            let mut rows = CsvRows::create(out)?;
+            let summary = simulate_streaming(&config, &effects, duration, |r| rows.write(r))?;
+            rows.finish()?;
+            summary
+        }
+        None => simulate_streaming(&config, &effects, duration, |_| Ok(()))?,
+    };
     emit(&format!(
         "{} ({} outer, {} inner), {} effect(s): max |e| = {:.4} rad, rms e = {:.4} rad, torque power > 10 rad/s = {:.1} (N·m)², {:.0} s simulated in {:.3} s ({:.0}× real time)\n",
         s.structure,
