@@ -32,6 +32,13 @@ use seat::Seat;
 use status::status_of;
 use swaps::Swaps;
 
+/// The supervisor's own ports on the loop's services and its command service.
+struct Ports {
+    commands: CommandServer<SupervisorRequest, SupervisorReply>,
+    heartbeats: Heartbeats,
+    status: Outlet<SupervisorStatus>,
+}
+
 /// A (re)started process gets this long to open its ports.
 const STARTUP_GRACE: Duration = Duration::from_millis(500);
 
@@ -45,9 +52,9 @@ pub struct Supervisor {
     recorder: Option<RecorderChild>,
     swaps: Swaps,
     seat: Seat,
-    commands: CommandServer<SupervisorRequest, SupervisorReply>,
-    heartbeats: Heartbeats,
-    status: Outlet<SupervisorStatus>,
+    /// Opened once the children are started, as the supervisor always has:
+    /// the loop's services are then the stages' own.
+    ports: Option<Ports>,
     own_pid: u32,
     last_status: Instant,
     status_seq: u64,
@@ -105,9 +112,7 @@ impl Supervisor {
             recorder,
             swaps: Swaps::open(bus, dir, config_path, cascade)?,
             seat,
-            commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
-            heartbeats: Heartbeats::open(bus)?,
-            status: Outlet::open(bus, service::SUPERVISOR_STATUS)?,
+            ports: None,
             own_pid: std::process::id(),
             last_status: Instant::now(),
             status_seq: 0,
@@ -132,6 +137,11 @@ impl Supervisor {
         if let Some(spare) = &mut self.seat.spare {
             spare.spawn(&self.scope, &["--standby".to_owned()])?;
         }
+        self.ports = Some(Ports {
+            commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
+            heartbeats: Heartbeats::open(bus)?,
+            status: Outlet::open(bus, service::SUPERVISOR_STATUS)?,
+        });
         let now = clock::now_ns();
         self.last_answer_ns.iter_mut().for_each(|t| *t = now);
         Ok(())
@@ -148,9 +158,7 @@ impl Supervisor {
             recorder,
             swaps,
             seat,
-            commands,
-            heartbeats,
-            status,
+            ports,
             own_pid,
             last_status,
             status_seq,
@@ -161,6 +169,14 @@ impl Supervisor {
             position_output_finite,
             misbehaving_handled,
         } = self;
+        let Some(Ports {
+            commands,
+            heartbeats,
+            status,
+        }) = ports
+        else {
+            return Ok(());
+        };
         let (scope, policy, own_pid) = (&*scope, &*policy, *own_pid);
         let hung_after = Duration::from_millis(policy.hung_after_ms);
         let advanced = heartbeats.advanced(last_reading, position_output_finite)?;
@@ -393,9 +409,7 @@ impl Supervisor {
             mut recorder,
             swaps,
             mut seat,
-            commands,
-            heartbeats,
-            status,
+            ports,
             ..
         } = self;
         let deadline = Instant::now() + Duration::from_millis(policy.stop_timeout_ms);
@@ -418,7 +432,7 @@ impl Supervisor {
             r.child.finish_stop(Instant::now() + Duration::from_secs(10));
         }
         // Ports before their node: a port keeps its node alive.
-        drop((swaps, seat, commands, heartbeats, status));
+        drop((swaps, seat, ports));
         drop(bus);
         Ok(scope.clean_stale()?)
     }
