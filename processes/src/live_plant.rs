@@ -24,7 +24,8 @@ use hydractl_bus::{clock, Inlet, Outlet, PublisherWatch, Reader};
 use hydractl_config::StallPolicy;
 use hydractl_plant::{Plant, SensorModel};
 use hydractl_samples::{
-    service, source, FrictionSample, Handover, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
+    fault, service, source, FrictionSample, Handover, PlantReading, PositionSample, SensorSample, TorqueSample,
+    ValveSample,
 };
 use hydractl_sim::build_plant;
 
@@ -183,7 +184,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
             if kind == PlantKind::Machine {
                 // The machine exists whether or not it drives the loop: its
                 // valve neutral, its readings (if its bus works) on standby.
-                let reading = read_sensors(&plant, &mut sensors, seq, late_commands, source_code);
+                let reading = read_sensors(&plant, &mut sensors, seq, late_commands, source_code, 0);
                 if !bus_lost {
                     standby_readings.publish(reading)?;
                 }
@@ -194,13 +195,24 @@ pub fn run(kind: PlantKind) -> Result<()> {
             next_tick += period;
             continue;
         }
-        readings.publish(read_sensors(&plant, &mut sensors, seq, late_commands, source_code))?;
+        let neutral_for = without_command
+            .saturating_sub(amplifier_timeout)
+            .min(u64::from(u32::MAX)) as u32;
+        readings.publish(read_sensors(
+            &plant,
+            &mut sensors,
+            seq,
+            late_commands,
+            source_code,
+            neutral_for,
+        ))?;
         let deadline = Instant::now() + command_timeout;
         let mut fresh = false;
         while !fresh {
             let remaining = deadline.saturating_duration_since(Instant::now());
             match valve.wait_latest(remaining)? {
-                Some(sample) if sample.sensor_seq >= seq => {
+                // The valve starting or stopping drives neutral, answering no reading.
+                Some(sample) if sample.sensor_seq >= seq && sample.faults & fault::OFF == 0 => {
                     command = sample.command;
                     fresh = true;
                 }
@@ -270,7 +282,14 @@ fn wait_for_chain(bus: &hydractl_bus::Bus) -> Result<()> {
 }
 
 /// The sensors' reading of the plant's present state, as published.
-fn read_sensors(plant: &Plant, sensors: &mut SensorModel, seq: u64, late_commands: u64, source: u32) -> PlantReading {
+fn read_sensors(
+    plant: &Plant,
+    sensors: &mut SensorModel,
+    seq: u64,
+    late_commands: u64,
+    source: u32,
+    amplifier_neutral_for: u32,
+) -> PlantReading {
     let state = plant.state();
     let raw = sensors.read(&state);
     PlantReading {
@@ -282,6 +301,6 @@ fn read_sensors(plant: &Plant, sensors: &mut SensorModel, seq: u64, late_command
         true_angle: state.angle,
         late_commands,
         source,
-        reserved: 0,
+        amplifier_neutral_for,
     }
 }

@@ -1,10 +1,12 @@
 //! Command shaping and the last line of safety: publishes the valve's
 //! state for every command, and neutral with a fault flag when commands
-//! stop, arrive stale, or are garbage.
+//! stop, arrive stale, or are garbage. The valve is driven neutral before
+//! the loop starts and on every way out of it: a signal, an error, a
+//! panic (the drop of [`Actuator`]).
 
 use std::time::{Duration, Instant};
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use hydractl_bus::devices::{SimulatedValve, ValveDevice};
 use hydractl_bus::{clock, run_loop, Inlet, Outlet, Wake};
 use hydractl_samples::{fault, service, valid, SensorSample, TorqueSample, ValveSample};
@@ -13,21 +15,68 @@ use hydractl_stages::{ValveFaults, ValveStage};
 const COMMAND: usize = 0;
 const SENSOR: usize = 1;
 
+/// The valve device and the valve's published state, driven together:
+/// what the device is told is what the loop sees. Dropped, it drives
+/// neutral, whatever ended the process's loop.
+struct Actuator<D: ValveDevice> {
+    device: D,
+    out: Outlet<ValveSample>,
+    newest: SensorSample,
+    /// The last thing driven was [`Actuator::off`].
+    is_off: bool,
+}
+
+impl<D: ValveDevice> Actuator<D> {
+    fn drive(&mut self, sample: ValveSample) -> Result<()> {
+        // The device first: the valve is what moves the load.
+        self.device.drive(sample.command)?;
+        self.is_off = sample.faults & fault::OFF != 0;
+        self.out.publish(sample)?;
+        Ok(())
+    }
+
+    /// Neutral, answering no reading: at start and at the end.
+    fn off(&mut self) -> Result<()> {
+        self.drive(ValveSample {
+            sensor_seq: self.newest.sensor_seq,
+            sensor_time_ns: self.newest.sensor_time_ns,
+            stage_time_ns: clock::now_ns(),
+            command: 0.0,
+            requested: f64::NAN,
+            faults: fault::OFF,
+            variant: 0,
+        })
+    }
+}
+
+impl<D: ValveDevice> Drop for Actuator<D> {
+    fn drop(&mut self) {
+        // Nothing is left to report an error to: neutral was tried.
+        if !self.is_off {
+            let _ = self.off();
+        }
+    }
+}
+
 fn main() -> Result<()> {
     let started = hydractl_processes::start("valve")?;
     let bus = &started.bus;
+    let mut actuator = Actuator {
+        device: SimulatedValve,
+        out: Outlet::open(bus, service::VALVE)?,
+        newest: SensorSample::default(),
+        is_off: false,
+    };
+    actuator.off().context("valve: driving neutral at start")?;
     let mut stage = ValveStage::new(&started.config)?;
-    let mut device = SimulatedValve;
     let torque: Inlet<TorqueSample> = Inlet::open(bus, service::TORQUE, 4)?;
     let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
-    let out: Outlet<ValveSample> = Outlet::open(bus, service::VALVE)?;
     let silence_timeout = Duration::from_secs_f64(started.config.control.valve_guard.silence_timeout_ms / 1000.0);
-    let mut newest = SensorSample::default();
     let mut last_input = Instant::now();
     let mut failure = None;
     // The tick is the valve's own clock, for when readings stop too.
     started.enter_realtime();
-    run_loop(
+    let ended = run_loop(
         &[torque.listener(), sensor.listener()],
         Some(silence_timeout / 4),
         &started.bus,
@@ -37,45 +86,52 @@ fn main() -> Result<()> {
                 // and any that arrived with it.
                 let mut neutral = None;
                 while let Some(s) = sensor.next()? {
-                    newest = s;
+                    actuator.newest = s;
                     last_input = Instant::now();
                     neutral = stage.on_sensor(s.sensor_seq, s.valid == valid::ALL).or(neutral);
                 }
+                let newest = actuator.newest;
                 let decision = match wake {
-                    Wake::Input(COMMAND) => torque.latest()?.map(|t| {
+                    Wake::Input(COMMAND) => torque.latest()?.and_then(|t| {
                         last_input = Instant::now();
-                        let (command, faults) = stage.on_command(t.sensor_seq, t.command, t.variant);
-                        (t.sensor_seq, t.sensor_time_ns, command, t.command, faults)
+                        let (command, faults) = stage.on_command(t.sensor_seq, t.command, t.variant)?;
+                        Some((t.sensor_seq, t.sensor_time_ns, command, t.command, faults, t.variant))
                     }),
-                    Wake::Input(SENSOR) => neutral
-                        .map(|(command, faults)| (newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults)),
+                    Wake::Input(SENSOR) => neutral.map(|(command, faults)| {
+                        (newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0)
+                    }),
                     // Before the first reading the loop has not started and the
                     // valve is neutral anyway: silence means something only after.
                     Wake::Tick if newest.sensor_time_ns != 0 && last_input.elapsed() >= silence_timeout => {
                         // Silent again after another timeout: say so again.
                         last_input = Instant::now();
                         let (command, faults) = stage.on_silence();
-                        Some((newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults))
+                        Some((newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0))
                     }
                     _ => None,
                 };
-                if let Some((seq, sensor_time_ns, command, requested, faults)) = decision {
-                    device.drive(command)?;
-                    out.publish(ValveSample {
+                if let Some((seq, sensor_time_ns, command, requested, faults, variant)) = decision {
+                    actuator.drive(ValveSample {
                         sensor_seq: seq,
                         sensor_time_ns,
                         stage_time_ns: clock::now_ns(),
                         command,
                         requested,
                         faults: encode(faults),
-                        reserved: 0,
+                        variant,
                     })?;
                 }
                 Ok(())
             })
         },
-    )?;
-    failure.map_or(Ok(()), Err)
+    );
+    // Neutral before anything is reported: the loop is over, however it ended.
+    let stopped = actuator.off().context("valve: driving neutral at the end");
+    ended?;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    stopped
 }
 
 fn encode(f: ValveFaults) -> u32 {

@@ -180,6 +180,9 @@ impl Supervisor {
         let (scope, policy, own_pid) = (&*scope, &*policy, *own_pid);
         let hung_after = Duration::from_millis(policy.hung_after_ms);
         let advanced = heartbeats.advanced(last_reading, position_output_finite)?;
+        if let Some(r) = last_reading {
+            swaps.note_reading(r);
+        }
         // Whether each output had paused, before this round's news, by
         // its own timestamps (a just-restarted process has none yet).
         let now_ns = clock::now_ns();

@@ -33,6 +33,10 @@ pub(super) struct Swaps {
     current: Option<SwapInProgress>,
     handover_seq: u64,
     event_seq: u64,
+    /// The newest reading from which the valve's own timeout held it
+    /// neutral (the plant says so): how soon the valve was safe when the
+    /// valve process itself was gone.
+    amplifier_neutral_from: Option<u64>,
 }
 
 struct SwapInProgress {
@@ -72,6 +76,7 @@ impl Swaps {
             current: None,
             handover_seq: 0,
             event_seq: 0,
+            amplifier_neutral_from: None,
         })
     }
 
@@ -276,6 +281,14 @@ impl Swaps {
         Ok(())
     }
 
+    /// The plant's newest reading: whether the valve's own timeout holds it neutral.
+    pub(super) fn note_reading(&mut self, reading: &hydractl_samples::PlantReading) {
+        if reading.amplifier_neutral_for > 0 {
+            self.amplifier_neutral_from =
+                Some(reading.sensor_seq - u64::from(reading.amplifier_neutral_for).min(reading.sensor_seq));
+        }
+    }
+
     /// A fault's account, once its process answers again: how long the
     /// detection, the valve's going safe and the restart took.
     pub(super) fn publish_fault(&mut self, process: &str, fault: Fault, back_at: Option<Instant>) -> Result<()> {
@@ -285,7 +298,18 @@ impl Swaps {
         self.take_valve_samples()?;
         let valve_safe = fault
             .last_seq
-            .and_then(|seq| self.log.valve_safe_after_periods(seq))
+            .and_then(|seq| {
+                // By the valve's samples, or by its own timeout when the
+                // valve process was the one gone, whichever came first.
+                let by_amplifier = self
+                    .amplifier_neutral_from
+                    .filter(|&from| from > seq)
+                    .map(|from| from.saturating_sub(seq + 2));
+                match (self.log.valve_safe_after_periods(seq), by_amplifier) {
+                    (Some(a), Some(b)) => Some(a.min(b)),
+                    (a, b) => a.or(b),
+                }
+            })
             .unwrap_or(u64::MAX);
         self.events.publish(SupervisorEvent {
             seq: self.event_seq,

@@ -59,7 +59,16 @@ impl ValveLog {
     /// The first reading after `seq` at which the valve was made safe (a
     /// fault flag, neutral).
     pub fn first_fault_after(&self, seq: u64) -> Option<u64> {
-        self.entries.iter().find(|e| e.0 > seq && e.2 != 0).map(|e| e.0)
+        self.entries.iter().find_map(|&(at, _, faults)| {
+            // A valve stopping drives neutral for the reading after the
+            // newest it knew.
+            let effective = if faults & hydractl_samples::fault::OFF != 0 {
+                at + 1
+            } else {
+                at
+            };
+            (effective > seq && faults != 0).then_some(effective)
+        })
     }
 
     /// How many periods the valve held its last command after a process

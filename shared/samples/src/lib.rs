@@ -79,6 +79,9 @@ pub mod fault {
     pub const INVALID_SENSOR: u32 = 1 << 3;
     /// The requested commands limit-cycle: neutral until they stop.
     pub const LIMIT_CYCLE: u32 = 1 << 4;
+    /// The valve process is starting or stopping: neutral, answering no
+    /// reading (its `sensor_seq` is the newest it knew, if any).
+    pub const OFF: u32 = 1 << 5;
 }
 
 /// Codes of the structure and variants, for samples that report them.
@@ -154,7 +157,10 @@ pub struct PlantReading {
     pub late_commands: u64,
     /// [`source`]: the machine or the simulated plant.
     pub source: u32,
-    pub reserved: u32,
+    /// Periods for which the valve's own timeout (the amplifier's watchdog,
+    /// on the vehicle the valve's RPDO timeout) has held it neutral: no
+    /// command for longer than the guard allows. 0 while commands come.
+    pub amplifier_neutral_for: u32,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
@@ -237,7 +243,9 @@ pub struct ValveSample {
     pub requested: f64,
     /// [`fault`] flags; 0 when healthy.
     pub faults: u32,
-    pub reserved: u32,
+    /// The [`code`] variant of the controller whose command this answers
+    /// (the torque sample's), for judging who is in charge.
+    pub variant: u32,
 }
 
 /// One process as the supervisor sees it.

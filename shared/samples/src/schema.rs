@@ -141,7 +141,7 @@ recordable!(
     PlantReading,
     "PlantReading",
     sensor_time_ns,
-    "uint64 sensor_seq\nuint64 sensor_time_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 true_angle\nuint64 late_commands\nuint32 source\nuint32 reserved\n"
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 true_angle\nuint64 late_commands\nuint32 source\nuint32 amplifier_neutral_for\n"
 );
 recordable!(
     SensorSample,
@@ -171,7 +171,7 @@ recordable!(
     ValveSample,
     "ValveSample",
     stage_time_ns,
-    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 command\nfloat64 requested\nuint32 faults\nuint32 reserved\n"
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 command\nfloat64 requested\nuint32 faults\nuint32 variant\n"
 );
 recordable!(
     SupervisorStatus,

@@ -85,52 +85,71 @@ impl ValveStage {
 
     /// A command derived from sensor reading `seq`, from the controller
     /// variant `source` ([`hydractl_samples`]' `code`, any stable tag will
-    /// do). Returns the command to drive and the faults. A new source (a hot
-    /// swap hands over without a gap in the commands) is judged afresh.
-    pub fn on_command(&mut self, seq: u64, requested: f64, source: u32) -> (f64, ValveFaults) {
-        if self.command_source.is_some_and(|s| s != source) {
-            self.forget_limit_cycle();
-        }
-        self.command_source = Some(source);
+    /// do). Returns the command to drive and the faults, or `None` for a
+    /// command answering a reading an accepted command already answered
+    /// (a second publisher): the valve holds what it drives and says
+    /// nothing. A new source (a hot swap hands over without a gap in the
+    /// commands) is judged afresh.
+    ///
+    /// Only an accepted command moves the guard's state: one that is
+    /// refused (stale, garbage, or from a reading the valve did not see as
+    /// valid) changes neither the command's age, nor the source, nor the
+    /// limit-cycle watch, so a garbled sequence number cannot switch the
+    /// stale-command guard off.
+    pub fn on_command(&mut self, seq: u64, requested: f64, source: u32) -> Option<(f64, ValveFaults)> {
         let reading = self.reading(seq);
-        let sound = requested.is_finite() && requested.abs() <= 1.0 + 1e-9;
-        if sound {
-            self.in_limit_cycle |= self.limit_cycle.update(seq, requested);
-        }
+        let source_changed = self.command_source.is_some_and(|s| s != source);
         let faults = ValveFaults {
             stale: self.readings_after(seq) > self.max_age,
             not_finite: !requested.is_finite(),
             out_of_range: requested.is_finite() && requested.abs() > 1.0 + 1e-9,
             // A reading the valve never saw is not known to be valid.
             invalid_sensor: reading != Some(true),
-            limit_cycle: self.in_limit_cycle,
+            limit_cycle: self.in_limit_cycle && !source_changed,
         };
-        self.readings_since_command = 0;
-        self.newest_command_seq = Some(self.newest_command_seq.map_or(seq, |c| c.max(seq)));
-        if faults.any() {
-            return (self.neutral(), faults);
+        let refused = faults.stale || faults.not_finite || faults.out_of_range || faults.invalid_sensor;
+        if refused {
+            return Some((self.neutral(), faults));
         }
-        (self.shaper.update(requested), faults)
+        if self.newest_command_seq.is_some_and(|newest| seq <= newest) {
+            return None;
+        }
+        if source_changed {
+            self.forget_limit_cycle();
+        }
+        self.command_source = Some(source);
+        self.in_limit_cycle |= self.limit_cycle.update(seq, requested);
+        self.readings_since_command = 0;
+        self.newest_command_seq = Some(seq);
+        let faults = ValveFaults {
+            limit_cycle: self.in_limit_cycle,
+            ..ValveFaults::default()
+        };
+        if faults.any() {
+            return Some((self.neutral(), faults));
+        }
+        Some((self.shaper.update(requested), faults))
     }
 
     /// A new sensor reading `seq`: when more than `max_age` readings have
     /// come after the one the newest command answered (whenever that
     /// command arrived), the valve goes to neutral (`Some`).
     pub fn on_sensor(&mut self, seq: u64, valid: bool) -> Option<(f64, ValveFaults)> {
-        // A sequence going backwards is a restarted plant: forget the old run.
+        // A sequence going backwards (or repeating) is a restarted plant or a
+        // garbled reading: forget the old run, and drive nothing from it.
         if self.filled > 0 {
             let newest = self.recent[(self.next_slot + RECENT_READINGS - 1) % RECENT_READINGS].0;
-            if seq < newest {
+            if seq <= newest {
+                // The command in effect answered the old run's readings.
                 self.filled = 0;
                 self.next_slot = 0;
                 self.newest_command_seq = None;
-                self.forget_limit_cycle();
+                self.readings_since_command = 0;
+                self.remember(seq, valid);
+                return Some(self.stale());
             }
         }
-        self.recent[self.next_slot] = (seq, valid);
-        self.next_slot = (self.next_slot + 1) % RECENT_READINGS;
-        self.filled = (self.filled + 1).min(RECENT_READINGS);
-        self.readings_since_command += 1;
+        self.remember(seq, valid);
         let stale = match self.newest_command_seq {
             Some(command) => self.readings_after(command) > self.max_age,
             None => self.readings_since_command > self.max_age,
@@ -139,6 +158,13 @@ impl ValveStage {
             return Some(self.stale());
         }
         None
+    }
+
+    fn remember(&mut self, seq: u64, valid: bool) {
+        self.recent[self.next_slot] = (seq, valid);
+        self.next_slot = (self.next_slot + 1) % RECENT_READINGS;
+        self.filled = (self.filled + 1).min(RECENT_READINGS);
+        self.readings_since_command += 1;
     }
 
     /// Neither readings nor commands for the silence timeout: the loop
@@ -195,7 +221,7 @@ mod tests {
     fn valve_passes_sound_commands_through_the_shaper() {
         let mut v = valve();
         assert!(v.on_sensor(10, true).is_none());
-        let (command, faults) = v.on_command(10, 0.05, 0);
+        let (command, faults) = v.on_command(10, 0.05, 0).expect("answered");
         assert!(!faults.any());
         assert!((command - 0.05).abs() < 1e-12);
     }
@@ -206,16 +232,16 @@ mod tests {
         v.on_sensor(1, true);
         v.on_command(1, 0.05, 0);
         v.on_sensor(2, true);
-        let (command, faults) = v.on_command(2, f64::NAN, 0);
+        let (command, faults) = v.on_command(2, f64::NAN, 0).expect("answered");
         assert_eq!((command, faults.not_finite), (0.0, true));
         v.on_sensor(3, true);
-        let (command, faults) = v.on_command(3, 1.5, 0);
+        let (command, faults) = v.on_command(3, 1.5, 0).expect("answered");
         assert_eq!((command, faults.out_of_range), (0.0, true));
         v.on_sensor(4, false);
-        let (command, faults) = v.on_command(4, 0.05, 0);
+        let (command, faults) = v.on_command(4, 0.05, 0).expect("answered");
         assert_eq!((command, faults.invalid_sensor), (0.0, true));
         // A command from a reading the valve never saw is not trusted either.
-        let (command, faults) = v.on_command(99, 0.05, 0);
+        let (command, faults) = v.on_command(99, 0.05, 0).expect("answered");
         assert_eq!((command, faults.invalid_sensor), (0.0, true));
     }
 
@@ -227,7 +253,7 @@ mod tests {
         let mut first_neutral = None;
         for seq in 0..2000 {
             v.on_sensor(seq, true);
-            let (command, faults) = v.on_command(seq, bang_bang(seq), 0);
+            let (command, faults) = v.on_command(seq, bang_bang(seq), 0).expect("answered");
             if faults.limit_cycle && first_neutral.is_none() {
                 first_neutral = Some(seq);
             }
@@ -242,7 +268,7 @@ mod tests {
             v.on_sensor(seq, true);
         }
         v.on_sensor(2004, true);
-        let (_, faults) = v.on_command(2004, 0.9, 0);
+        let (_, faults) = v.on_command(2004, 0.9, 0).expect("answered");
         assert!(!faults.any(), "{faults:?}");
     }
 
@@ -257,7 +283,7 @@ mod tests {
         // The handover leaves no gap in the commands: the new variant's
         // first command is driven.
         v.on_sensor(1400, true);
-        let (command, faults) = v.on_command(1400, 0.3, 2);
+        let (command, faults) = v.on_command(1400, 0.3, 2).expect("answered");
         assert!(!faults.any(), "{faults:?}");
         assert!(command > 0.0);
     }
@@ -268,10 +294,10 @@ mod tests {
         for seq in 5..=8 {
             v.on_sensor(seq, true);
         }
-        let (_, faults) = v.on_command(5, 0.05, 0);
+        let (_, faults) = v.on_command(5, 0.05, 0).expect("answered");
         assert!(!faults.stale, "readings 6, 7, 8 came after it");
         v.on_sensor(9, true);
-        let (command, faults) = v.on_command(5, 0.05, 0);
+        let (command, faults) = v.on_command(5, 0.05, 0).expect("answered");
         assert_eq!((command, faults.stale), (0.0, true));
     }
 
@@ -308,7 +334,7 @@ mod tests {
         v.on_sensor(10, true);
         v.on_command(10, 0.05, 0);
         assert!(v.on_sensor(17, true).is_none());
-        let (_, faults) = v.on_command(17, 0.05, 0);
+        let (_, faults) = v.on_command(17, 0.05, 0).expect("answered");
         assert!(!faults.any());
     }
 
@@ -320,7 +346,175 @@ mod tests {
             v.on_command(seq, 0.05, 0);
         }
         v.on_sensor(0, true);
-        let (_, faults) = v.on_command(0, 0.05, 0);
+        let (_, faults) = v.on_command(0, 0.05, 0).expect("answered");
         assert!(!faults.any());
+    }
+
+    #[test]
+    fn a_refused_command_moves_nothing_of_the_guard() {
+        let mut v = valve();
+        v.on_sensor(10, true);
+        v.on_command(10, 0.05, 0).expect("answered");
+        // Tagged with a reading that never came: refused, and the newest
+        // command is still the one for reading 10.
+        let (command, faults) = v.on_command(u64::MAX, 0.05, 0).expect("answered");
+        assert_eq!((command, faults.invalid_sensor), (0.0, true));
+        // Refused garbage from another source does not reset the watch either.
+        let (_, faults) = v.on_command(10, f64::NAN, 7).expect("answered");
+        assert!(faults.not_finite);
+        for seq in 11..=13 {
+            assert!(v.on_sensor(seq, true).is_none());
+        }
+        let (command, faults) = v.on_sensor(14, true).expect("the dead controller's command is stale");
+        assert_eq!((command, faults.stale), (0.0, true));
+    }
+
+    #[test]
+    fn a_second_answer_to_the_same_reading_is_not_driven() {
+        let mut v = valve();
+        v.on_sensor(9, true);
+        v.on_sensor(10, true);
+        v.on_command(10, 0.05, 0).expect("answered");
+        assert_eq!(v.on_command(10, -0.9, 0), None, "a second publisher is ignored");
+        assert_eq!(v.on_command(9, -0.9, 0), None, "an older reading too");
+    }
+
+    #[test]
+    fn a_sequence_going_backwards_drives_neutral_at_once() {
+        let mut v = valve();
+        v.on_sensor(10, true);
+        v.on_command(10, 0.05, 0).expect("answered");
+        let (command, faults) = v.on_sensor(3, true).expect("neutral");
+        assert_eq!((command, faults.stale), (0.0, true));
+    }
+}
+
+#[cfg(test)]
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[derive(Debug, Clone)]
+    enum Event {
+        /// The next reading, `skip` sequence numbers on (a stall), valid or not.
+        Reading {
+            skip: u64,
+            valid: bool,
+        },
+        /// A command answering the reading `back` readings before the
+        /// newest (stale when large), or one never seen (`future`).
+        Command {
+            back: u64,
+            future: bool,
+            value: Value,
+            source: u32,
+        },
+        Silence,
+        /// A garbled reading number going backwards.
+        Backwards {
+            by: u64,
+        },
+    }
+
+    #[derive(Debug, Clone, Copy)]
+    enum Value {
+        Sound(f64),
+        NotFinite,
+        OutOfRange(f64),
+    }
+
+    fn value() -> impl Strategy<Value = Value> {
+        prop_oneof![
+            6 => (-1.0..=1.0f64).prop_map(Value::Sound),
+            1 => Just(Value::NotFinite),
+            1 => (1.01..100.0f64).prop_map(Value::OutOfRange),
+        ]
+    }
+
+    fn event() -> impl Strategy<Value = Event> {
+        prop_oneof![
+            8 => (0..4u64, prop::bool::weighted(0.9)).prop_map(|(skip, valid)| Event::Reading { skip, valid }),
+            8 => (0..8u64, prop::bool::weighted(0.05), value(), 0..3u32)
+                .prop_map(|(back, future, value, source)| Event::Command { back, future, value, source }),
+            1 => Just(Event::Silence),
+            1 => (1..50u64).prop_map(|by| Event::Backwards { by }),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        /// Whatever comes in whatever order, the valve is never driven by a
+        /// command older than `max_age` readings (counted as they arrived)
+        /// or derived from a reading that was not valid.
+        #[test]
+        fn the_valve_is_never_driven_by_a_stale_or_invalid_command(events in prop::collection::vec(event(), 1..400)) {
+            let config = Config::default_sim().expect("valid");
+            let max_age = config.control.valve_guard.max_age_periods;
+            let mut v = ValveStage::new(&config).expect("stage");
+            // What the test saw: every reading in arrival order.
+            let mut arrived: Vec<(u64, bool)> = Vec::new();
+            let mut next_seq = 100u64;
+            // The command driving the valve: the index in `arrived` of its reading.
+            let mut driving: Option<usize> = None;
+            for event in events {
+                match event {
+                    Event::Reading { skip, valid } => {
+                        let seq = next_seq + skip;
+                        next_seq = seq + 1;
+                        arrived.push((seq, valid));
+                        if let Some((command, _)) = v.on_sensor(seq, valid) {
+                            prop_assert_eq!(command, 0.0);
+                            driving = None;
+                        }
+                    }
+                    Event::Backwards { by } => {
+                        let seq = next_seq.saturating_sub(by);
+                        next_seq = seq + 1;
+                        arrived.push((seq, true));
+                        if let Some((command, _)) = v.on_sensor(seq, true) {
+                            prop_assert_eq!(command, 0.0);
+                            driving = None;
+                        }
+                    }
+                    Event::Silence => {
+                        prop_assert_eq!(v.on_silence().0, 0.0);
+                        driving = None;
+                    }
+                    Event::Command { back, future, value, source } => {
+                        let seq = if future || arrived.is_empty() {
+                            next_seq + 5
+                        } else {
+                            arrived[arrived.len() - 1 - (back as usize).min(arrived.len() - 1)].0
+                        };
+                        let requested = match value {
+                            Value::Sound(x) => x,
+                            Value::NotFinite => f64::NAN,
+                            Value::OutOfRange(x) => x,
+                        };
+                        match v.on_command(seq, requested, source) {
+                            None => {}
+                            Some((command, faults)) if faults.any() => {
+                                prop_assert_eq!(command, 0.0);
+                                driving = None;
+                            }
+                            Some((command, _)) => {
+                                prop_assert!(command.is_finite() && command.abs() <= 1.0);
+                                // The newest arrival of that reading number.
+                                let at = arrived.iter().rposition(|(s, _)| *s == seq);
+                                prop_assert!(at.is_some(), "driven from reading {} never seen", seq);
+                                let at = at.unwrap_or_default();
+                                prop_assert!(arrived[at].1, "driven from invalid reading {}", seq);
+                                driving = Some(at);
+                            }
+                        }
+                    }
+                }
+                if let Some(at) = driving {
+                    let age = (arrived.len() - 1 - at) as u64;
+                    prop_assert!(age <= max_age, "driven by a command {} readings old", age);
+                }
+            }
+        }
     }
 }

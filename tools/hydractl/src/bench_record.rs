@@ -110,7 +110,7 @@ fn cycles(n: usize) -> Result<Vec<Cycle>> {
                     command: r.u,
                     requested: r.u,
                     faults: 0,
-                    reserved: 0,
+                    variant: 0,
                 },
             }
         })

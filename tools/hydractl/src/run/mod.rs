@@ -289,6 +289,10 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     let exit = run_loop(&[], Some(Duration::from_millis(10)), &bus, |_| {
         let mut step = || -> Result<Flow> {
             while let Some(v) = valve.next()? {
+                // The valve process starting or stopping answers no reading.
+                if v.faults & hydractl_samples::fault::OFF != 0 {
+                    continue;
+                }
                 // One command per sensor reading; a neutral published on a
                 // later reading while the chain is broken counts as a cycle too.
                 if last_valve_seq.is_none_or(|last| v.sensor_seq > last) {
