@@ -126,6 +126,53 @@ pub struct Started {
     pub config: Config,
     pub bus: Bus,
     pub args: ProcessArgs,
+    pub injected: InjectedFault,
+}
+
+/// The environment variable through which a system test makes one process
+/// misbehave: `PROCESS:spin@SEQ` makes `PROCESS` spin at the loop's
+/// priority from reading `SEQ` on, as a controller stuck in a busy loop
+/// would. Only a process that saw the readings before `SEQ` spins, so the
+/// one restarted in its place does not.
+pub const INJECT_FAULT_ENV: &str = "HYDRACTL_INJECT_FAULT";
+
+/// A fault injected through [`INJECT_FAULT_ENV`], if it names this process.
+#[derive(Debug, Default)]
+pub struct InjectedFault {
+    spin_at: Option<u64>,
+    saw_before: std::cell::Cell<bool>,
+}
+
+impl InjectedFault {
+    fn for_process(name: &str, text: Option<&str>) -> Result<Self> {
+        let Some(text) = text else {
+            return Ok(Self::default());
+        };
+        let parsed = text.split_once(':').and_then(|(process, fault)| {
+            let at = fault.strip_prefix("spin@")?.parse::<u64>().ok()?;
+            Some((process, at))
+        });
+        let Some((process, at)) = parsed else {
+            anyhow::bail!("{INJECT_FAULT_ENV}=`{text}` is not PROCESS:spin@SEQ");
+        };
+        Ok(Self {
+            spin_at: (process == name).then_some(at),
+            saw_before: std::cell::Cell::new(false),
+        })
+    }
+
+    /// Called with every reading the process answers: from the injected
+    /// one on, it never returns.
+    pub fn at_reading(&self, seq: u64) {
+        let Some(at) = self.spin_at else { return };
+        if seq < at {
+            self.saw_before.set(true);
+        } else if self.saw_before.get() {
+            loop {
+                std::hint::spin_loop();
+            }
+        }
+    }
 }
 
 impl Started {
@@ -134,11 +181,13 @@ impl Started {
     /// (opening files, mapping memory) would hold the loop's CPU, and stall
     /// the running stages, for the whole of its start-up.
     pub fn enter_realtime(&self) {
-        // The valve listens to the sensor as well as to the torque stage:
-        // one step below the chain, it waits until the chain has run
-        // instead of taking the CPU in its middle at every reading.
+        // The valve, the last line of safety, one step above the chain: its
+        // own clock runs even when a stage above it spins at the loop's
+        // priority (SAFETY.md), at the price of taking the CPU in the
+        // chain's middle at every reading, for the few microseconds its
+        // guard needs.
         let priority = self.config.timing.realtime_priority.map(|p| match self.name.as_str() {
-            "valve" => p.saturating_sub(1).max(1),
+            "valve" => (p + 1).min(99),
             _ => p,
         });
         if let Err(e) = placement::run_realtime(priority) {
@@ -166,11 +215,13 @@ pub fn start(name: &str) -> Result<Started> {
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
     let bus = Bus::open(&scope, name).with_context(|| format!("{name}: opening the bus"))?;
+    let injected = InjectedFault::for_process(name, std::env::var(INJECT_FAULT_ENV).ok().as_deref())?;
     Ok(Started {
         name: name.to_owned(),
         config,
         bus,
         args,
+        injected,
     })
 }
 
@@ -207,5 +258,17 @@ mod tests {
         assert!(parse_resume("1,2,3").is_err());
         assert!(parse_resume("x,0,0,0").is_err());
         assert!(parse_resume("1,NaN,0,0").is_err());
+    }
+
+    #[test]
+    fn an_injected_fault_names_its_process_and_spares_a_restarted_one() {
+        let none = InjectedFault::for_process("torque", None).expect("none");
+        none.at_reading(5);
+        let other = InjectedFault::for_process("torque", Some("position:spin@5")).expect("valid");
+        other.at_reading(10);
+        // Started past the reading, as a restarted process is: no spin.
+        let restarted = InjectedFault::for_process("torque", Some("torque:spin@5")).expect("valid");
+        restarted.at_reading(6);
+        assert!(InjectedFault::for_process("torque", Some("torque:hang")).is_err());
     }
 }

@@ -382,6 +382,11 @@ impl RecordedRun {
     /// Starts `hydractl run ARGS --summary-json --record` (the witness first,
     /// so it sees the run's first samples).
     pub fn start(scope: &RunScope, dir: &Path, args: &[&str]) -> Self {
+        Self::start_with_env(scope, dir, args, &[])
+    }
+
+    /// [`RecordedRun::start`] with `env` set for every process of the run.
+    pub fn start_with_env(scope: &RunScope, dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Self {
         let (summary, recording) = (dir.join("summary.json"), dir.join("run.mcap"));
         let witness = Witness::in_background(scope);
         let mut all: Vec<&str> = args.to_vec();
@@ -391,7 +396,13 @@ impl RecordedRun {
             "--record",
             recording.to_str().expect("path"),
         ]);
-        let run = start_run(scope, &all);
+        let run = RunGuard(
+            run_command(scope, &all)
+                .envs(env.iter().copied())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("hydractl run starts"),
+        );
         Self {
             run,
             witness,

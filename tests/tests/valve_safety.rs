@@ -109,3 +109,111 @@ fn the_valve_drives_neutral_when_stopped_killed_or_restarted() {
     drop(observer);
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_spinning_controller_is_named_and_killed_and_the_valve_goes_neutral_meanwhile() {
+    let _turn = serial();
+    let scope = unique_scope("spin");
+    let dir = scratch_dir("spin");
+    let observer = Observer::open(&scope);
+    // The outer loop spins at the loop's priority from reading 2000 (2 s).
+    let run = RecordedRun::start_with_env(
+        &scope,
+        &dir,
+        &["--duration", "30"],
+        &[("HYDRACTL_INJECT_FAULT", "position:spin@2000")],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    let spinner = observer.pid_of("position", Duration::from_secs(2)).expect("position");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut replaced = false;
+    while !replaced && Instant::now() < deadline {
+        replaced = observer
+            .pid_of("position", Duration::from_millis(100))
+            .is_some_and(|p| p != spinner);
+    }
+    assert!(replaced, "the spinner was replaced");
+    observer.drain_valve();
+    assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop resumes");
+    let summary = run.finish();
+    let faults = summary["faults"].as_array().expect("faults");
+    eprintln!("{}", summary["faults"]);
+    assert_eq!(
+        faults.len(),
+        1,
+        "the spinner alone is blamed, not the processes it starved: {summary}"
+    );
+    assert_eq!(
+        (faults[0]["process"].as_str(), faults[0]["kind"].as_str()),
+        (Some("position"), Some("spin"))
+    );
+    assert_eq!(faults[0]["pid"].as_u64(), Some(u64::from(spinner)));
+    // The valve, above the chain on its CPU, is neutral within its silence
+    // timeout (20 ms) and one tick of its clock (5 ms) of its last command.
+    let samples = recorded_valve(&dir.join("run.mcap"));
+    let first_fault = samples
+        .iter()
+        .position(|v| v.faults != 0 && v.sensor_seq >= 1900)
+        .expect("a neutral valve");
+    let last_healthy = &samples[first_fault - 1];
+    let neutral_after_ms = (samples[first_fault].stage_time_ns - last_healthy.stage_time_ns) as f64 * 1e-6;
+    eprintln!(
+        "valve neutral {neutral_after_ms:.1} ms after its last command: {:?}",
+        samples[first_fault]
+    );
+    assert_eq!(samples[first_fault].command, 0.0);
+    assert!(neutral_after_ms <= 30.0, "neutral after {neutral_after_ms} ms");
+    drop(observer);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_limit_cycling_baseline_comes_back_ever_later_and_its_bursts_are_bounded() {
+    let _turn = serial();
+    let scope = unique_scope("lcbackoff");
+    let dir = scratch_dir("lcbackoff");
+    // The inner PID, the papers' baseline, at 25 times its tuned gain: it
+    // limit-cycles at about 5 Hz through the valve's whole range, again
+    // after every restart. No fallback variant: `on_limit_cycle =
+    // "baseline"` finds it already the baseline and backs off.
+    let config = config_from_default(&dir, "limit_cycle.toml", |sim| {
+        sim.replace("[control.torque.pid]\nkp = 2.0e-3", "[control.torque.pid]\nkp = 5.0e-2")
+    });
+    let summary_path = dir.join("summary.json");
+    let out = run_to_end(
+        &scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            "60",
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+        Duration::from_secs(90),
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary = read_json(&summary_path);
+    let faults = summary["faults"].as_array().expect("faults");
+    let bursts: Vec<&serde_json::Value> = faults.iter().filter(|f| f["kind"] == "limit_cycle").collect();
+    eprintln!("{}", summary["faults"]);
+    assert!(
+        faults
+            .iter()
+            .all(|f| f["process"] == "torque" && f["kind"] == "limit_cycle"),
+        "the inner loop alone is blamed: {summary}"
+    );
+    // Waits of 1, 2, 4, 8, 16 s after bursts of about 1.3 s each: six
+    // bursts in 60 s, where restarting at once would have made 20 (the
+    // restart limit) and then left it down.
+    assert!((4..=7).contains(&bursts.len()), "{} bursts: {summary}", bursts.len());
+    let waits: Vec<f64> = bursts.iter().filter_map(|f| f["restarted_after_ms"].as_f64()).collect();
+    for pair in waits.windows(2) {
+        assert!(pair[1] >= 1.8 * pair[0], "each wait doubles the last: {waits:?}");
+    }
+    assert!(waits.first().is_some_and(|&w| w >= 1000.0), "{waits:?}");
+    for f in &bursts {
+        assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 2), "{f}");
+    }
+    std::fs::remove_dir_all(dir).ok();
+}

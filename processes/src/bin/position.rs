@@ -45,6 +45,7 @@ fn main() -> Result<()> {
                 latest_sensor = s;
             }
             let Some(f) = friction.latest()? else { return Ok(()) };
+            started.injected.at_reading(f.sensor_seq);
             let duty = role.duty(&handovers, f.sensor_seq)?;
             let newest_running = |r: Option<PositionSample>| r.map(|r| (r.sensor_seq, r.output));
             if duty == Duty::Track {

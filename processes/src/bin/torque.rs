@@ -45,6 +45,7 @@ fn main() -> Result<()> {
                 latest_friction = f;
             }
             let Some(p) = position.latest()? else { return Ok(()) };
+            started.injected.at_reading(p.sensor_seq);
             let duty = role.duty(&handovers, p.sensor_seq)?;
             let newest_running = |r: Option<TorqueSample>| r.map(|r| (r.sensor_seq, r.command));
             if duty == Duty::Track {

@@ -72,7 +72,11 @@ fn main() -> Result<()> {
     let torque: Inlet<TorqueSample> = Inlet::open(bus, service::TORQUE, 4)?;
     let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
     let silence_timeout = Duration::from_secs_f64(started.config.control.valve_guard.silence_timeout_ms / 1000.0);
-    let mut last_input = Instant::now();
+    // Silence is counted from the last thing the valve drove: with readings
+    // coming and commands not, the guard drives neutral reading by reading;
+    // with both stopped (a stage spinning above it, the plant gone), this
+    // clock does, within the timeout and a tick.
+    let mut last_driven = Instant::now();
     let mut failure = None;
     // The tick is the valve's own clock, for when readings stop too.
     started.enter_realtime();
@@ -87,13 +91,11 @@ fn main() -> Result<()> {
                 let mut neutral = None;
                 while let Some(s) = sensor.next()? {
                     actuator.newest = s;
-                    last_input = Instant::now();
                     neutral = stage.on_sensor(s.sensor_seq, s.valid == valid::ALL).or(neutral);
                 }
                 let newest = actuator.newest;
                 let decision = match wake {
                     Wake::Input(COMMAND) => torque.latest()?.and_then(|t| {
-                        last_input = Instant::now();
                         let (command, faults) = stage.on_command(t.sensor_seq, t.command, t.variant)?;
                         Some((t.sensor_seq, t.sensor_time_ns, command, t.command, faults, t.variant))
                     }),
@@ -102,15 +104,15 @@ fn main() -> Result<()> {
                     }),
                     // Before the first reading the loop has not started and the
                     // valve is neutral anyway: silence means something only after.
-                    Wake::Tick if newest.sensor_time_ns != 0 && last_input.elapsed() >= silence_timeout => {
-                        // Silent again after another timeout: say so again.
-                        last_input = Instant::now();
+                    Wake::Tick if newest.sensor_time_ns != 0 && last_driven.elapsed() >= silence_timeout => {
                         let (command, faults) = stage.on_silence();
                         Some((newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0))
                     }
                     _ => None,
                 };
                 if let Some((seq, sensor_time_ns, command, requested, faults, variant)) = decision {
+                    // Silent again after another timeout: said again.
+                    last_driven = Instant::now();
                     actuator.drive(ValveSample {
                         sensor_seq: seq,
                         sensor_time_ns,

@@ -77,6 +77,8 @@ pub struct Supervised {
     restart_times: std::collections::VecDeque<Instant>,
     /// Why it is left down, when its restart rule says so.
     pub given_up: Option<String>,
+    /// How many times its commands limit-cycled in this run.
+    pub limit_cycles: u32,
     /// When its input last started flowing again after a pause: a hang is
     /// counted from here too, so a stage whose input was gone is not
     /// declared hung the moment the input returns.
@@ -102,6 +104,7 @@ impl Supervised {
             exited_cleanly: false,
             restart_times: std::collections::VecDeque::new(),
             given_up: None,
+            limit_cycles: 0,
             input_resumed: now,
         }
     }
@@ -210,6 +213,17 @@ impl Supervised {
             self.backoff = (self.backoff * 2).min(max);
         }
         self.restart_at = Some(now + self.backoff);
+    }
+
+    /// Holds its scheduled restart until at least `at`.
+    pub fn delay_restart(&mut self, at: Instant) {
+        self.restart_at = self.restart_at.map(|scheduled| scheduled.max(at));
+    }
+
+    /// Leaves it down, for `why`.
+    pub fn give_up(&mut self, why: String) {
+        self.given_up = Some(why);
+        self.restart_at = None;
     }
 
     pub fn restart_due(&self, now: Instant) -> bool {

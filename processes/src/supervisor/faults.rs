@@ -3,6 +3,8 @@
 
 use std::time::{Duration, Instant};
 
+use hydractl_config::OnLimitCycle;
+
 /// A process that crashed, hung or misbehaved, until it is back.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Fault {
@@ -16,6 +18,8 @@ pub(super) struct Fault {
     /// A controller restarted for misbehaving: its variant, and the one it
     /// was restarted into.
     pub(super) variants: Option<(&'static str, &'static str)>,
+    /// Periods the valve held its last command, once known.
+    pub(super) valve_safe_after: Option<u64>,
 }
 
 /// What the supervisor knows of a running process when it judges a hang.
@@ -37,12 +41,114 @@ pub(super) fn is_hung(liveness: Liveness, startup_grace: Duration, hung_after: D
     liveness.uptime > startup_grace && liveness.input_flowing && liveness.quiet_for > hung_after
 }
 
+/// A process's time on its CPU and waiting for it, ns, since it started
+/// (`/proc/PID/schedstat`); `None` once it is gone.
+pub(super) fn cpu_times(pid: u32) -> Option<(u64, u64)> {
+    let text = std::fs::read_to_string(format!("/proc/{pid}/schedstat")).ok()?;
+    let mut fields = text.split_ascii_whitespace().map(|f| f.parse::<u64>().ok());
+    Some((fields.next()??, fields.next()??))
+}
+
+/// How a process used its CPU over the supervisor's last rounds: a stage
+/// of the loop needs a few per cent of it; one that takes more than its
+/// share for long spins (a busy loop at the loop's priority starves every
+/// process beside it, and only the CPU time says which one it is); one
+/// that wanted the CPU and did not get it is starved, not hung.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct CpuWatch {
+    last: Option<(u32, Instant, u64, u64)>,
+    /// How long it has used more than its share, without a break.
+    pub(super) busy_for: Duration,
+    /// How long it has waited for the CPU more than half the time.
+    pub(super) starved_for: Duration,
+}
+
+impl CpuWatch {
+    /// Takes process `pid`'s CPU times at `now`; a new pid starts afresh.
+    pub(super) fn update(&mut self, pid: u32, now: Instant, times: Option<(u64, u64)>, share: f64) {
+        let Some((run_ns, wait_ns)) = times else {
+            *self = Self::default();
+            return;
+        };
+        if let Some((_, at, last_run, last_wait)) = self.last.filter(|l| l.0 == pid) {
+            let elapsed = now.saturating_duration_since(at);
+            let elapsed_ns = elapsed.as_nanos().max(1) as f64;
+            let ran = run_ns.saturating_sub(last_run) as f64 / elapsed_ns;
+            let waited = wait_ns.saturating_sub(last_wait) as f64 / elapsed_ns;
+            self.busy_for = if ran > share {
+                self.busy_for + elapsed
+            } else {
+                Duration::ZERO
+            };
+            self.starved_for = if waited > 0.5 {
+                self.starved_for + elapsed
+            } else {
+                Duration::ZERO
+            };
+        } else {
+            self.busy_for = Duration::ZERO;
+            self.starved_for = Duration::ZERO;
+        }
+        self.last = Some((pid, now, run_ns, wait_ns));
+    }
+}
+
+/// How a controller stopped for limit-cycling comes back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Comeback {
+    /// Restarted into `variant`, no sooner than `after` (beyond the usual
+    /// restart back-off).
+    Restart {
+        variant: &'static str,
+        after: Duration,
+    },
+    LeaveDown,
+}
+
+/// The papers' baseline: PID, in both loops.
+const BASELINE: &str = "pid";
+
+/// A controller running `running` limit-cycled for the `bursts`-th time:
+/// the configured fallback variant if it is another; else, by
+/// `on_limit_cycle`, the baseline PID, the same variant after a wait
+/// doubled at every burst (also when the baseline itself limit-cycles), or
+/// nothing. Never the same behaviour again at once.
+pub(super) fn after_limit_cycle(
+    on_limit_cycle: OnLimitCycle,
+    running: &'static str,
+    fallback: Option<&'static str>,
+    bursts: u32,
+    backoff: Duration,
+) -> Comeback {
+    let backing_off = Comeback::Restart {
+        variant: running,
+        after: backoff.saturating_mul(1 << bursts.saturating_sub(1).min(16)),
+    };
+    match (fallback.filter(|&f| f != running), on_limit_cycle) {
+        (Some(variant), _) => Comeback::Restart {
+            variant,
+            after: Duration::ZERO,
+        },
+        (None, OnLimitCycle::Stop) => Comeback::LeaveDown,
+        (None, OnLimitCycle::Baseline) if running != BASELINE => Comeback::Restart {
+            variant: BASELINE,
+            after: Duration::ZERO,
+        },
+        (None, OnLimitCycle::Baseline | OnLimitCycle::Backoff) => backing_off,
+    }
+}
+
 /// The pipeline index of the controller blamed when the valve keeps
-/// rejecting commands: the outer loop (3) when its own output is garbage or
-/// it drives the valve (the torque stage bypassed), else the torque stage
-/// (4), which feeds the valve.
-pub(super) fn blamed_for_rejections(position_output_finite: bool, torque_bypassed: bool) -> usize {
-    if !position_output_finite || torque_bypassed {
+/// rejecting commands: the outer loop (3) when its own output is garbage,
+/// limit-cycles itself (the inner loop only follows its reference), or
+/// drives the valve (the torque stage bypassed), else the torque stage (4),
+/// which feeds the valve.
+pub(super) fn blamed_for_rejections(
+    position_output_finite: bool,
+    position_output_limit_cycling: bool,
+    torque_bypassed: bool,
+) -> usize {
+    if !position_output_finite || position_output_limit_cycling || torque_bypassed {
         3
     } else {
         4
@@ -79,21 +185,84 @@ mod tests {
     }
 
     #[test]
+    fn a_process_over_its_cpu_share_without_a_break_spins_and_one_kept_waiting_is_starved() {
+        let t0 = Instant::now();
+        let ms = |n: u64| t0 + Duration::from_millis(n);
+        let mut watch = CpuWatch::default();
+        watch.update(7, ms(0), Some((0, 0)), 0.5);
+        // 5 ms rounds: 4.5 ms on the CPU in each.
+        for k in 1..=4u64 {
+            watch.update(7, ms(5 * k), Some((k * 4_500_000, 0)), 0.5);
+        }
+        assert_eq!(watch.busy_for, Duration::from_millis(20));
+        // A round at its usual few per cent: the streak ends.
+        watch.update(7, ms(25), Some((18_100_000, 0)), 0.5);
+        assert_eq!(watch.busy_for, Duration::ZERO);
+        // Runnable but kept off the CPU.
+        watch.update(7, ms(30), Some((18_100_000, 4_000_000)), 0.5);
+        assert_eq!(watch.starved_for, Duration::from_millis(5));
+        // A new process in its place starts afresh; a gone one has nothing.
+        watch.update(8, ms(35), Some((90_000_000, 0)), 0.5);
+        assert_eq!((watch.busy_for, watch.starved_for), (Duration::ZERO, Duration::ZERO));
+        watch.update(8, ms(40), None, 0.5);
+        assert!(watch.last.is_none());
+    }
+
+    #[test]
+    fn the_supervisors_own_process_has_cpu_times() {
+        assert!(cpu_times(std::process::id()).is_some());
+    }
+
+    #[test]
     fn garbage_is_blamed_on_the_stage_that_made_it() {
         assert_eq!(
-            blamed_for_rejections(true, false),
+            blamed_for_rejections(true, false, false),
             4,
             "cascade: the torque loop feeds the valve"
         );
         assert_eq!(
-            blamed_for_rejections(false, false),
+            blamed_for_rejections(false, false, false),
             3,
             "the outer loop's own output is garbage"
         );
         assert_eq!(
-            blamed_for_rejections(true, true),
+            blamed_for_rejections(true, true, false),
+            3,
+            "the outer loop's reference limit-cycles; the inner loop follows it"
+        );
+        assert_eq!(
+            blamed_for_rejections(true, false, true),
             3,
             "position-only: the outer loop drives the valve"
+        );
+    }
+
+    #[test]
+    fn a_limit_cycling_controller_never_comes_back_as_it_was_at_once() {
+        let second = Duration::from_secs(1);
+        let restart = |variant, after| Comeback::Restart { variant, after };
+        assert_eq!(
+            after_limit_cycle(OnLimitCycle::Baseline, "hinf", Some("hinf"), 1, second),
+            restart("pid", Duration::ZERO),
+            "a fallback naming the same variant is no fallback"
+        );
+        assert_eq!(
+            after_limit_cycle(OnLimitCycle::Stop, "pid", Some("hinf"), 1, second),
+            restart("hinf", Duration::ZERO),
+            "the configured fallback first"
+        );
+        assert_eq!(
+            after_limit_cycle(OnLimitCycle::Baseline, "pid", None, 3, second),
+            restart("pid", Duration::from_secs(4)),
+            "the baseline itself limit-cycles: backing off, doubled per burst"
+        );
+        assert_eq!(
+            after_limit_cycle(OnLimitCycle::Backoff, "mfc", None, 1, second),
+            restart("mfc", second)
+        );
+        assert_eq!(
+            after_limit_cycle(OnLimitCycle::Stop, "pid", None, 1, second),
+            Comeback::LeaveDown
         );
     }
 }

@@ -25,8 +25,8 @@ use hydractl_samples::{
 pub use child::{DownReason, Supervised, PIPELINE};
 pub use valve_log::{Rejected, SwitchQuality, ValveLog, TRANSIENT};
 
-use faults::{blamed_for_rejections, is_hung, Fault, Liveness};
-use heartbeats::Heartbeats;
+use faults::{after_limit_cycle, blamed_for_rejections, cpu_times, is_hung, Comeback, CpuWatch, Fault, Liveness};
+use heartbeats::{Heartbeats, OuterLoopWatch};
 use recorder::RecorderChild;
 use seat::Seat;
 use status::status_of;
@@ -46,6 +46,8 @@ const STARTUP_GRACE: Duration = Duration::from_millis(500);
 pub struct Supervisor {
     scope: RunScope,
     policy: SupervisorConfig,
+    /// The valve's limit-cycle judgement, applied to the outer loop's output.
+    limit_cycle: hydractl_control::LimitCycleParams,
     /// The loop's processes in [`PIPELINE`] order; `children[0]` is the
     /// plant in charge.
     children: Vec<Supervised>,
@@ -68,6 +70,11 @@ pub struct Supervisor {
     position_output_finite: bool,
     /// The newest rejected command already acted on.
     misbehaving_handled: Option<u64>,
+    /// Each loop process's use of its CPU.
+    cpu: Vec<CpuWatch>,
+    /// The previous round: a round that comes late means the supervisor
+    /// itself did not run, and the whole computer stalled.
+    last_tick: Option<Instant>,
 }
 
 impl Supervisor {
@@ -108,6 +115,7 @@ impl Supervisor {
         Ok(Self {
             scope: bus.scope().clone(),
             policy: config.supervisor.clone(),
+            limit_cycle: config.control.valve_guard.limit_cycle(),
             children,
             recorder,
             swaps: Swaps::open(bus, dir, config_path, cascade)?,
@@ -122,6 +130,8 @@ impl Supervisor {
             restarting: vec![true; count],
             position_output_finite: true,
             misbehaving_handled: None,
+            cpu: vec![CpuWatch::default(); count],
+            last_tick: None,
         })
     }
 
@@ -139,7 +149,10 @@ impl Supervisor {
         }
         self.ports = Some(Ports {
             commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
-            heartbeats: Heartbeats::open(bus)?,
+            heartbeats: Heartbeats::open(
+                bus,
+                OuterLoopWatch::new(hydractl_control::LimitCycleDetector::new(self.limit_cycle)?),
+            )?,
             status: Outlet::open(bus, service::SUPERVISOR_STATUS)?,
         });
         let now = clock::now_ns();
@@ -154,6 +167,7 @@ impl Supervisor {
         let Self {
             scope,
             policy,
+            limit_cycle: _,
             children,
             recorder,
             swaps,
@@ -168,6 +182,8 @@ impl Supervisor {
             restarting,
             position_output_finite,
             misbehaving_handled,
+            cpu,
+            last_tick,
         } = self;
         let Some(Ports {
             commands,
@@ -252,21 +268,43 @@ impl Supervisor {
         );
         if rejected.count >= policy.misbehaving_after_periods {
             *misbehaving_handled = rejected.newest;
-            let i = blamed_for_rejections(*position_output_finite, children[4].variant.is_none());
+            let limit_cycling = rejected.why & fault::LIMIT_CYCLE != 0;
+            let i = blamed_for_rejections(
+                *position_output_finite,
+                limit_cycling && heartbeats.outer_loop().limit_cycling,
+                children[4].variant.is_none(),
+            );
             let child = &mut children[i];
             if child.is_running() {
-                let (kind, what) = if rejected.why & fault::LIMIT_CYCLE != 0 {
+                let (kind, what) = if limit_cycling {
                     (code::EVENT_LIMIT_CYCLE, "limit-cycling")
                 } else {
                     (code::EVENT_MISBEHAVING, "garbage")
                 };
                 let from = child.variant;
-                if let Some(v) = policy
+                let fallback = policy
                     .fallback_variants
                     .get(child.name)
                     .and_then(|v| code::variant_code(v))
-                {
-                    child.variant = Some(code::variant_name(v));
+                    .map(code::variant_name);
+                let comeback = match (limit_cycling, from) {
+                    (true, Some(running)) => {
+                        child.limit_cycles += 1;
+                        after_limit_cycle(
+                            policy.on_limit_cycle,
+                            running,
+                            fallback,
+                            child.limit_cycles,
+                            Duration::from_millis(policy.limit_cycle_backoff_ms),
+                        )
+                    }
+                    _ => Comeback::Restart {
+                        variant: fallback.or(from).unwrap_or("pid"),
+                        after: Duration::ZERO,
+                    },
+                };
+                if let Comeback::Restart { variant, .. } = comeback {
+                    child.variant = Some(variant);
                 }
                 faults[i] = Some(Fault {
                     kind,
@@ -275,17 +313,81 @@ impl Supervisor {
                     silent_for: Duration::ZERO,
                     last_seq: rejected.newest.map(|s| s.saturating_sub(rejected.count)),
                     variants: from.zip(child.variant),
+                    valve_safe_after: None,
                 });
                 child.kill_hung();
                 cleanup_needed = true;
+                restarting[i] = match comeback {
+                    Comeback::Restart { after, .. } => {
+                        let scheduled = child.after_stop(now, policy);
+                        child.delay_restart(now + after);
+                        scheduled
+                    }
+                    Comeback::LeaveDown => {
+                        child.give_up(format!("its commands {what}; on_limit_cycle = \"stop\""));
+                        false
+                    }
+                };
                 eprintln!(
-                    "supervisor: the valve rejected {} commands in {} readings as {what}: {} misbehaves; restarting it ({})",
+                    "supervisor: the valve rejected {} commands in {} readings as {what}: {} misbehaves; {}",
                     rejected.count,
                     2 * policy.misbehaving_after_periods,
                     child.name,
-                    child.variant.unwrap_or("-")
+                    match comeback {
+                        Comeback::Restart { variant, after } if after.is_zero() => format!("restarting it ({variant})"),
+                        Comeback::Restart { variant, after } => {
+                            format!("restarting it ({variant}) in {} ms", after.as_millis())
+                        }
+                        Comeback::LeaveDown => "leaving it down, the valve neutral".to_owned(),
+                    }
+                );
+                if i == 3 {
+                    heartbeats.outer_loop().reset();
+                }
+            }
+        }
+        // A round this late means the supervisor did not run either: the
+        // whole computer stalled, and a process quiet through it is not hung.
+        let computer_stalled = last_tick.is_some_and(|t| now.saturating_duration_since(t) >= hung_after / 2);
+        *last_tick = Some(now);
+        // A process over its CPU share for long spins: it starves every
+        // process beside it, which must not be blamed for their silence.
+        let spinning_after = Duration::from_millis(policy.spinning_after_ms);
+        let mut spinner_found = false;
+        for i in 0..children.len() {
+            let child = &mut children[i];
+            let Some(pid) = child.pid() else {
+                cpu[i] = CpuWatch::default();
+                continue;
+            };
+            cpu[i].update(pid, now, cpu_times(pid), policy.spinning_cpu_share);
+            if child.uptime(now) > STARTUP_GRACE && cpu[i].busy_for >= spinning_after {
+                let busy_for = cpu[i].busy_for;
+                faults[i] = Some(Fault {
+                    kind: code::EVENT_SPIN,
+                    pid,
+                    detected_at: now,
+                    silent_for: Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[i])),
+                    last_seq: child.last_seq,
+                    variants: None,
+                    valve_safe_after: None,
+                });
+                child.kill_hung();
+                cleanup_needed = true;
+                spinner_found = true;
+                eprintln!(
+                    "supervisor: {} (pid {pid}) spins: more than {:.0} % of its CPU for {} ms; killed",
+                    child.name,
+                    policy.spinning_cpu_share * 100.0,
+                    busy_for.as_millis()
                 );
                 restarting[i] = child.after_stop(now, policy);
+            }
+        }
+        if computer_stalled || spinner_found {
+            // Quiet is counted from now: the processes could not run.
+            for child in children.iter_mut() {
+                child.input_resumed = now;
             }
         }
         for i in 0..children.len() {
@@ -308,12 +410,15 @@ impl Supervisor {
                 silent_for,
                 last_seq,
                 variants: None,
+                valve_safe_after: None,
             };
             if child.reap() {
                 faults[i] = Some(fault(code::EVENT_CRASH));
                 cleanup_needed = true;
                 restarting[i] = child.after_stop(now, policy);
             } else if child.is_running()
+                // Kept off its CPU by something else: starved, not hung.
+                && cpu[i].starved_for < hung_after / 2
                 && is_hung(
                     Liveness {
                         uptime: child.uptime(now),
@@ -352,6 +457,12 @@ impl Supervisor {
         if cleanup_needed {
             scope.remove_dead_nodes()?;
         }
+        // How soon the valve was safe, as soon as its samples say.
+        for fault in faults.iter_mut().flatten() {
+            if fault.valve_safe_after.is_none() {
+                fault.valve_safe_after = swaps.valve_safe_after(fault);
+            }
+        }
         if let Some(r) = recorder.as_mut() {
             if r.child.restart_due(now) {
                 r.restart(scope)?;
@@ -375,6 +486,9 @@ impl Supervisor {
                 };
                 child.spawn(scope, &args)?;
                 child.restarts += 1;
+                if child.name == "position" {
+                    heartbeats.outer_loop().reset();
+                }
             }
         }
         let request = match commands.receive()? {

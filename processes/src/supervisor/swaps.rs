@@ -281,6 +281,27 @@ impl Swaps {
         Ok(())
     }
 
+    /// How many periods the valve held its last command after the fault's
+    /// process last answered, before it went safe: by the valve's samples,
+    /// or by its own timeout when the valve process was the one gone,
+    /// whichever came first. Taken while the valve's recent samples still
+    /// hold the fault (a process down for seconds outlasts them).
+    pub(super) fn valve_safe_after(&mut self, fault: &Fault) -> Option<u64> {
+        // The valve's samples up to now, not up to the last tick: a tick
+        // that came late (the supervisor shares its CPU with the recorder
+        // and everything else) must not hide the valve's going safe.
+        self.take_valve_samples().ok()?;
+        let seq = fault.last_seq?;
+        let by_amplifier = self
+            .amplifier_neutral_from
+            .filter(|&from| from > seq)
+            .map(|from| from.saturating_sub(seq + 2));
+        match (self.log.valve_safe_after_periods(seq), by_amplifier) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
     /// The plant's newest reading: whether the valve's own timeout holds it neutral.
     pub(super) fn note_reading(&mut self, reading: &hydractl_samples::PlantReading) {
         if reading.amplifier_neutral_for > 0 {
@@ -292,24 +313,9 @@ impl Swaps {
     /// A fault's account, once its process answers again: how long the
     /// detection, the valve's going safe and the restart took.
     pub(super) fn publish_fault(&mut self, process: &str, fault: Fault, back_at: Option<Instant>) -> Result<()> {
-        // The valve's samples up to now, not up to the last tick: a tick
-        // that came late (the supervisor shares its CPU with the recorder
-        // and everything else) must not hide the valve's going safe.
-        self.take_valve_samples()?;
         let valve_safe = fault
-            .last_seq
-            .and_then(|seq| {
-                // By the valve's samples, or by its own timeout when the
-                // valve process was the one gone, whichever came first.
-                let by_amplifier = self
-                    .amplifier_neutral_from
-                    .filter(|&from| from > seq)
-                    .map(|from| from.saturating_sub(seq + 2));
-                match (self.log.valve_safe_after_periods(seq), by_amplifier) {
-                    (Some(a), Some(b)) => Some(a.min(b)),
-                    (a, b) => a.or(b),
-                }
-            })
+            .valve_safe_after
+            .or_else(|| self.valve_safe_after(&fault))
             .unwrap_or(u64::MAX);
         self.events.publish(SupervisorEvent {
             seq: self.event_seq,

@@ -19,7 +19,7 @@ pub use control::{
     ControlConfig, OuterLoopConfig, OuterPart, PositionVariant, Structure, TorqueLoopConfig, TorqueVariant,
     ValveGuardParams, MAX_GUARD_PERIODS,
 };
-pub use supervisor::{RestartPolicy, RestartRule, SupervisorConfig, SUPERVISED_PROCESSES};
+pub use supervisor::{OnLimitCycle, RestartPolicy, RestartRule, SupervisorConfig, SUPERVISED_PROCESSES};
 pub use timing::{StallPolicy, Timing};
 
 #[derive(Debug, thiserror::Error)]

@@ -29,6 +29,16 @@ pub struct SupervisorConfig {
     pub misbehaving_after_periods: u64,
     /// …into this variant, per stage (`position`, `torque`), when given.
     pub fallback_variants: std::collections::BTreeMap<String, String>,
+    /// How a controller whose commands limit-cycle comes back, when no
+    /// fallback variant is given for its stage.
+    pub on_limit_cycle: OnLimitCycle,
+    /// `backoff`'s first wait, doubled at every limit cycle of the stage.
+    pub limit_cycle_backoff_ms: u64,
+    /// A loop process that takes more than this share of its CPU…
+    pub spinning_cpu_share: f64,
+    /// …for this long without a break spins (a busy loop starves every
+    /// process on the loop's CPU): it is killed and restarted.
+    pub spinning_after_ms: u64,
 }
 
 impl Default for SupervisorConfig {
@@ -44,8 +54,28 @@ impl Default for SupervisorConfig {
             machine_lost_after_periods: 10,
             misbehaving_after_periods: 10,
             fallback_variants: std::collections::BTreeMap::new(),
+            on_limit_cycle: OnLimitCycle::Baseline,
+            limit_cycle_backoff_ms: 1000,
+            spinning_cpu_share: 0.5,
+            spinning_after_ms: 20,
         }
     }
+}
+
+/// How a limit-cycling controller comes back: never into the same
+/// behaviour without end.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnLimitCycle {
+    /// Into the papers' baseline PID for its stage; when the PID itself
+    /// limit-cycles, as `backoff`.
+    #[default]
+    Baseline,
+    /// The same variant, after `limit_cycle_backoff_ms`, doubled at every
+    /// limit cycle (the valve neutral meanwhile).
+    Backoff,
+    /// Left down: the valve stays neutral until someone acts.
+    Stop,
 }
 
 /// The processes a supervisor's restart rules may name.

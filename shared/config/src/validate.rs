@@ -89,6 +89,8 @@ impl Config {
             ("stop_timeout_ms", sup.stop_timeout_ms),
             ("machine_lost_after_periods", sup.machine_lost_after_periods),
             ("misbehaving_after_periods", sup.misbehaving_after_periods),
+            ("spinning_after_ms", sup.spinning_after_ms),
+            ("limit_cycle_backoff_ms", sup.limit_cycle_backoff_ms),
         ] {
             if value == 0 {
                 return Err(ConfigError::Supervisor {
@@ -96,6 +98,15 @@ impl Config {
                     reason: format!("{name} must be above 0"),
                 });
             }
+        }
+        if !(sup.spinning_cpu_share > 0.0 && sup.spinning_cpu_share <= 1.0) {
+            return Err(ConfigError::Supervisor {
+                path: path.to_owned(),
+                reason: format!(
+                    "spinning_cpu_share must be in (0, 1], a share of one CPU, got {}",
+                    sup.spinning_cpu_share
+                ),
+            });
         }
         for (stage, variant) in &sup.fallback_variants {
             let allowed: &[&str] = match stage.as_str() {

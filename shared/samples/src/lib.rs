@@ -110,6 +110,9 @@ pub mod code {
     /// The valve found a controller's commands limit-cycling and held
     /// neutral: it was restarted (into its fallback variant, if any).
     pub const EVENT_LIMIT_CYCLE: u32 = 7;
+    /// A process took more than its share of the loop's CPU for too long
+    /// (a busy loop at the loop's priority): it was killed and restarted.
+    pub const EVENT_SPIN: u32 = 8;
 
     pub fn variant_name(variant: u32) -> &'static str {
         match variant {

@@ -359,13 +359,18 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                     }
                     code::EVENT_SWAP => swaps.push(swap),
                     code::EVENT_SWAP_FAILED => swap_failures.push(swap),
-                    code::EVENT_CRASH | code::EVENT_HANG | code::EVENT_MISBEHAVING | code::EVENT_LIMIT_CYCLE => {
+                    code::EVENT_CRASH
+                    | code::EVENT_HANG
+                    | code::EVENT_MISBEHAVING
+                    | code::EVENT_LIMIT_CYCLE
+                    | code::EVENT_SPIN => {
                         faults_seen.push(FaultSummary {
                             process: name_str(&e.process).to_owned(),
                             kind: match e.kind {
                                 code::EVENT_CRASH => "crash",
                                 code::EVENT_HANG => "hang",
                                 code::EVENT_LIMIT_CYCLE => "limit_cycle",
+                                code::EVENT_SPIN => "spin",
                                 _ => "misbehaving",
                             },
                             pid: e.pid,
