@@ -6,8 +6,60 @@
 //! sequence number, so exactly one of them answers each reading.
 
 use anyhow::Result;
-use hydractl_bus::{clock, Reader};
-use hydractl_samples::Handover;
+use hydractl_bus::{clock, Bus, Outlet, Reader};
+use hydractl_samples::{service, Handover, HandoverAck};
+
+/// Handovers a process may have waiting: far more than the supervisor ever
+/// has in flight (one swap and one plant switch at a time).
+const HANDOVER_QUEUE: usize = 64;
+
+/// The handovers for one process's stage, none lost: every handover
+/// published since its last look is read in order (not only the newest, as
+/// when plant and controller handovers overtook each other on the one
+/// service), and each one naming this stage is acknowledged on
+/// `hydractl/control/handover/ack`. Handovers from before this process
+/// started are old news (the service keeps the last one for late joiners).
+pub struct HandoverInbox {
+    handovers: Reader<Handover>,
+    acks: Outlet<HandoverAck>,
+    stage: u32,
+    pid: u32,
+    started_ns: u64,
+}
+
+impl HandoverInbox {
+    pub fn open(bus: &Bus, stage: u32) -> Result<Self> {
+        Ok(Self {
+            handovers: Reader::open(bus, service::HANDOVER, HANDOVER_QUEUE)?,
+            acks: Outlet::open(bus, service::HANDOVER_ACK)?,
+            stage,
+            pid: std::process::id(),
+            started_ns: clock::now_ns(),
+        })
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.pid
+    }
+
+    /// The next handover for this stage, acknowledged; `None` when none waits.
+    pub fn next_handover(&mut self) -> Result<Option<Handover>> {
+        while let Some(h) = self.handovers.next()? {
+            if h.stage != self.stage || h.stage_time_ns <= self.started_ns {
+                continue;
+            }
+            self.acks.publish(HandoverAck {
+                handover_seq: h.seq,
+                stage_time_ns: clock::now_ns(),
+                at_seq: h.at_seq,
+                pid: self.pid,
+                taking: u32::from(h.new_pid == self.pid),
+            })?;
+            return Ok(Some(h));
+        }
+        Ok(None)
+    }
+}
 
 /// What to do with this period's output.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -21,37 +73,28 @@ pub enum Duty {
 }
 
 pub struct Role {
-    stage: u32,
-    pid: u32,
-    started_ns: u64,
     standby: bool,
     take_over_at: Option<u64>,
     retire_at: Option<u64>,
 }
 
 impl Role {
-    pub fn new(stage: u32, standby: bool) -> Self {
+    pub fn new(standby: bool) -> Self {
         Self {
-            stage,
-            pid: std::process::id(),
-            started_ns: clock::now_ns(),
             standby,
             take_over_at: None,
             retire_at: None,
         }
     }
 
-    /// Reads the newest handover and says what to do with the output for
-    /// reading `seq`. Handovers from before this process started are old
-    /// news (the service keeps the last one for late joiners).
-    pub fn duty(&mut self, handovers: &Reader<Handover>, seq: u64) -> Result<Duty> {
-        if let Some(h) = handovers.latest()? {
-            if h.stage == self.stage && h.stage_time_ns > self.started_ns {
-                if h.new_pid == self.pid {
-                    self.take_over_at = Some(h.at_seq);
-                } else {
-                    self.retire_at = Some(h.at_seq);
-                }
+    /// Reads every waiting handover for this stage and says what to do
+    /// with the output for reading `seq`.
+    pub fn duty(&mut self, inbox: &mut HandoverInbox, seq: u64) -> Result<Duty> {
+        while let Some(h) = inbox.next_handover()? {
+            if h.new_pid == inbox.pid() {
+                self.take_over_at = Some(h.at_seq);
+            } else {
+                self.retire_at = Some(h.at_seq);
             }
         }
         Ok(Self::decide(&mut self.standby, self.take_over_at, self.retire_at, seq))

@@ -24,12 +24,11 @@ use hydractl_bus::{clock, Inlet, Outlet, PublisherWatch, Reader};
 use hydractl_config::StallPolicy;
 use hydractl_plant::{Plant, SensorModel};
 use hydractl_samples::{
-    fault, service, source, FrictionSample, Handover, PlantReading, PositionSample, SensorSample, TorqueSample,
-    ValveSample,
+    fault, service, source, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
 };
 use hydractl_sim::build_plant;
 
-use crate::handover::{PlantSeat, SeatChange};
+use crate::handover::{HandoverInbox, PlantSeat, SeatChange};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PlantKind {
@@ -60,7 +59,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
     let standby_readings: Outlet<PlantReading> = Outlet::open(bus, service::PLANT_STANDBY)?;
     let stream: Reader<PlantReading> = Reader::open(bus, service::PLANT_READING, 4)?;
     let estimates: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
-    let handovers: Reader<Handover> = Reader::open(bus, service::HANDOVER, 2)?;
+    let mut inbox = HandoverInbox::open(bus, hydractl_samples::code::STAGE_PLANT)?;
     let valve: Inlet<ValveSample> = Inlet::open(bus, service::VALVE, 8)?;
     let mut seat = PlantSeat::new(!started.args.standby);
     // A restarted plant resumes from what the loop last saw of it: its
@@ -145,13 +144,14 @@ pub fn run(kind: PlantKind) -> Result<()> {
         if let Some(s) = estimates.latest()? {
             last_velocity = s.velocity;
         }
-        let change = seat.update(
-            handovers.latest()?,
-            last_measured.map(|r| r.sensor_seq),
-            seq,
-            clock::now_ns(),
-            period_ns,
-        );
+        let stream_seq = last_measured.map(|r| r.sensor_seq);
+        let mut change = None;
+        while let Some(h) = inbox.next_handover()? {
+            change = change.or(seat.update(Some(h), stream_seq, seq, clock::now_ns(), period_ns));
+        }
+        // Once a period in any case, but not again in a period that already
+        // changed the seat: its judgement is of this period's state.
+        let change = change.or_else(|| seat.update(None, stream_seq, seq, clock::now_ns(), period_ns));
         match change {
             Some(SeatChange::Take { at_seq }) => {
                 eprintln!("{name}: drives the loop from reading {at_seq}");

@@ -5,9 +5,9 @@
 use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_config::{PositionVariant, Structure};
-use hydractl_processes::handover::{Duty, Role, Tracker};
+use hydractl_processes::handover::{Duty, HandoverInbox, Role, Tracker};
 use hydractl_processes::{estimate_of, time_of};
-use hydractl_samples::{code, service, FrictionSample, Handover, PositionSample, SensorSample};
+use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample};
 use hydractl_stages::PositionStage;
 
 fn main() -> Result<()> {
@@ -25,8 +25,8 @@ fn main() -> Result<()> {
     let out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION)?;
     let standby_out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION_STANDBY)?;
     let running: Reader<PositionSample> = Reader::open(bus, service::POSITION, 4)?;
-    let handovers: Reader<Handover> = Reader::open(bus, service::HANDOVER, 2)?;
-    let mut role = Role::new(code::STAGE_POSITION, started.args.standby);
+    let mut inbox = HandoverInbox::open(bus, code::STAGE_POSITION)?;
+    let mut role = Role::new(started.args.standby);
     let structure = match stage.structure() {
         Structure::Position => code::STRUCTURE_POSITION,
         Structure::Cascade => code::STRUCTURE_CASCADE,
@@ -46,7 +46,7 @@ fn main() -> Result<()> {
             }
             let Some(f) = friction.latest()? else { return Ok(()) };
             started.injected.at_reading(f.sensor_seq);
-            let duty = role.duty(&handovers, f.sensor_seq)?;
+            let duty = role.duty(&mut inbox, f.sensor_seq)?;
             let newest_running = |r: Option<PositionSample>| r.map(|r| (r.sensor_seq, r.output));
             if duty == Duty::Track {
                 if let Some((output, (time, estimate, friction))) = tracker.matched(newest_running(running.latest()?)) {

@@ -6,8 +6,8 @@ use anyhow::{bail, Result};
 use hydractl_bus::{clock, run_single, Inlet, Outlet, Reader};
 use hydractl_config::TorqueVariant;
 use hydractl_processes::estimate_of;
-use hydractl_processes::handover::{Duty, Role, Tracker};
-use hydractl_samples::{code, service, FrictionSample, Handover, PositionSample, SensorSample, TorqueSample};
+use hydractl_processes::handover::{Duty, HandoverInbox, Role, Tracker};
+use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample, TorqueSample};
 use hydractl_stages::{PositionOutput, TorqueStage};
 
 fn main() -> Result<()> {
@@ -26,8 +26,8 @@ fn main() -> Result<()> {
     let out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE)?;
     let standby_out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE_STANDBY)?;
     let running: Reader<TorqueSample> = Reader::open(bus, service::TORQUE, 4)?;
-    let handovers: Reader<Handover> = Reader::open(bus, service::HANDOVER, 2)?;
-    let mut role = Role::new(code::STAGE_TORQUE, started.args.standby);
+    let mut inbox = HandoverInbox::open(bus, code::STAGE_TORQUE)?;
+    let mut role = Role::new(started.args.standby);
     let variant = match stage.variant() {
         TorqueVariant::Pid => code::VARIANT_PID,
         TorqueVariant::Hinf => code::VARIANT_HINF,
@@ -46,7 +46,7 @@ fn main() -> Result<()> {
             }
             let Some(p) = position.latest()? else { return Ok(()) };
             started.injected.at_reading(p.sensor_seq);
-            let duty = role.duty(&handovers, p.sensor_seq)?;
+            let duty = role.duty(&mut inbox, p.sensor_seq)?;
             let newest_running = |r: Option<TorqueSample>| r.map(|r| (r.sensor_seq, r.command));
             if duty == Duty::Track {
                 if let Some((command, (output, estimate, friction))) =

@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use hydractl_bus::{clock, Bus, Outlet, PendingCommand, Reader, RunScope};
 use hydractl_samples::{
-    code, fixed_name, service, Handover, PositionSample, SupervisorEvent, SupervisorReply, SupervisorRequest,
-    TorqueSample, ValveSample,
+    code, fixed_name, service, Handover, HandoverAck, PositionSample, SupervisorEvent, SupervisorReply,
+    SupervisorRequest, TorqueSample, ValveSample,
 };
 
 use super::child::Supervised;
@@ -26,6 +26,9 @@ pub(super) struct Swaps {
     valve: Reader<ValveSample>,
     standby_position: Reader<PositionSample>,
     standby_torque: Reader<TorqueSample>,
+    acks: Reader<HandoverAck>,
+    position: Reader<PositionSample>,
+    torque: Reader<TorqueSample>,
     pub(super) log: ValveLog,
     dir: PathBuf,
     config: Option<PathBuf>,
@@ -51,8 +54,21 @@ struct SwapInProgress {
 }
 
 enum SwapPhase {
-    Starting { since: Instant },
-    HandedOver { at_seq: u64, since: Instant },
+    Starting {
+        since: Instant,
+    },
+    HandedOver {
+        at_seq: u64,
+        since: Instant,
+        handover_seq: u64,
+        /// The new process acknowledged the handover.
+        taken: bool,
+        /// The one it replaces acknowledged too.
+        retired: bool,
+        /// The stage's output for a reading from `at_seq` on came from the
+        /// new variant.
+        in_charge: bool,
+    },
 }
 
 /// Readings between the handover being published and the switch: 20 ms,
@@ -69,6 +85,9 @@ impl Swaps {
             valve: Reader::open(bus, service::VALVE, 256)?,
             standby_position: Reader::open(bus, service::POSITION_STANDBY, 256)?,
             standby_torque: Reader::open(bus, service::TORQUE_STANDBY, 256)?,
+            acks: Reader::open(bus, service::HANDOVER_ACK, 64)?,
+            position: Reader::open(bus, service::POSITION, 256)?,
+            torque: Reader::open(bus, service::TORQUE, 256)?,
             log: ValveLog::with_capacity(4096),
             dir,
             config,
@@ -126,24 +145,78 @@ impl Swaps {
                 match reading {
                     Some(seq) if swap.standby_outputs >= STANDBY_OUTPUTS => {
                         let at_seq = seq + HANDOVER_LEAD;
-                        self.hand_over(
+                        let handover_seq = self.hand_over(
                             swap.stage,
                             at_seq,
                             swap.child.pid().unwrap_or(0),
                             code::variant_code(swap.to).unwrap_or(0),
                         )?;
-                        swap.phase = SwapPhase::HandedOver { at_seq, since: now };
+                        swap.phase = SwapPhase::HandedOver {
+                            at_seq,
+                            since: now,
+                            handover_seq,
+                            taken: false,
+                            retired: false,
+                            in_charge: false,
+                        };
                     }
                     _ => {}
                 }
                 self.current = Some(swap);
             }
-            SwapPhase::HandedOver { at_seq, since } => {
+            SwapPhase::HandedOver {
+                at_seq,
+                since,
+                handover_seq,
+                mut taken,
+                mut retired,
+                mut in_charge,
+            } => {
+                let new_pid = swap.child.pid().unwrap_or(0);
+                while let Some(ack) = self.acks.next()? {
+                    if ack.handover_seq == handover_seq {
+                        taken |= ack.taking == 1 && ack.pid == new_pid;
+                        retired |= ack.taking == 0;
+                    }
+                }
+                let new_variant = code::variant_code(swap.to).unwrap_or(u32::MAX);
+                let answered_by_new = |seq: u64, variant: u32| seq >= at_seq && variant == new_variant;
+                while let Some(p) = self.position.next()? {
+                    in_charge |= swap.stage == code::STAGE_POSITION && answered_by_new(p.sensor_seq, p.variant);
+                }
+                while let Some(t) = self.torque.next()? {
+                    in_charge |= swap.stage == code::STAGE_TORQUE && answered_by_new(t.sensor_seq, t.variant);
+                }
                 let judged = self.log.judge(at_seq, 20, 1000, 1000);
                 let timed_out = now.saturating_duration_since(since) > Duration::from_secs(5);
-                if judged.is_none() && !timed_out {
+                if !timed_out && (judged.is_none() || !taken || !in_charge) {
+                    swap.phase = SwapPhase::HandedOver {
+                        at_seq,
+                        since,
+                        handover_seq,
+                        taken,
+                        retired,
+                        in_charge,
+                    };
                     self.current = Some(swap);
                     return Ok(());
+                }
+                if !(taken && in_charge) {
+                    // Not in charge: the old process, if it retired, is
+                    // found silent and restarted as a hung one would be.
+                    swap.child.kill_hung();
+                    let why = if taken {
+                        format!("it acknowledged the handover but answered no reading from {at_seq} within 5 s")
+                    } else {
+                        "it did not acknowledge the handover within 5 s".to_owned()
+                    };
+                    return self.fail(swap, &why);
+                }
+                if !retired {
+                    eprintln!(
+                        "supervisor: the {} process replaced by {} did not acknowledge its retirement; it is stopped",
+                        swap.from, swap.to
+                    );
                 }
                 let quality = judged.unwrap_or(SwitchQuality {
                     missed_cycles: 120,
@@ -236,9 +309,11 @@ impl Swaps {
     }
 
     /// Names the process that answers `stage` from reading `at_seq` on.
-    pub(super) fn hand_over(&mut self, stage: u32, at_seq: u64, new_pid: u32, variant: u32) -> Result<()> {
+    /// Returns the handover's number, which the acknowledgements carry.
+    pub(super) fn hand_over(&mut self, stage: u32, at_seq: u64, new_pid: u32, variant: u32) -> Result<u64> {
+        let seq = self.handover_seq;
         self.handovers.publish(Handover {
-            seq: self.handover_seq,
+            seq,
             stage_time_ns: clock::now_ns(),
             at_seq,
             new_pid,
@@ -247,7 +322,7 @@ impl Swaps {
             reserved: 0,
         })?;
         self.handover_seq += 1;
-        Ok(())
+        Ok(seq)
     }
 
     /// The running controller stays in charge; the caller hears why.

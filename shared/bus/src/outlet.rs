@@ -14,7 +14,8 @@ use crate::{Bus, BusError};
 /// samples and never blocks a publisher.
 const MAX_BUFFER: usize = 256;
 const MAX_SUBSCRIBERS: usize = 16;
-const MAX_PUBLISHERS: usize = 4;
+// The handover acknowledgements have one publisher per controller and plant.
+const MAX_PUBLISHERS: usize = 8;
 const MAX_NODES: usize = 32;
 
 type DataService<T> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;

@@ -36,6 +36,8 @@ pub mod service {
     pub const SUPERVISOR_EVENTS: &str = "hydractl/supervisor/events";
     /// The cycle at which a standby controller takes over from the running one.
     pub const HANDOVER: &str = "hydractl/control/handover";
+    /// Each process named by a handover says it read it.
+    pub const HANDOVER_ACK: &str = "hydractl/control/handover/ack";
     /// A standby controller's outputs while it tracks the running one.
     pub const POSITION_STANDBY: &str = "hydractl/position/standby";
     pub const TORQUE_STANDBY: &str = "hydractl/torque/standby";
@@ -296,6 +298,19 @@ pub struct Handover {
     pub stage: u32,
     pub variant: u32,
     pub reserved: u32,
+}
+
+/// From a process to the supervisor: it read handover `handover_seq` and
+/// will act on it at `at_seq`, taking over (`taking` 1) or retiring (0).
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::HandoverAck")]
+pub struct HandoverAck {
+    pub handover_seq: u64,
+    pub stage_time_ns: u64,
+    pub at_seq: u64,
+    pub pid: u32,
+    pub taking: u32,
 }
 
 /// Something the supervisor saw and what it did: a swap, a fault.

@@ -14,8 +14,8 @@ use std::mem::size_of;
 use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{
-    BenchSample, FrictionSample, Handover, PlantReading, PositionSample, RecorderStatus, SensorSample, SupervisorEvent,
-    SupervisorStatus, TorqueSample, ValveSample,
+    BenchSample, FrictionSample, Handover, HandoverAck, PlantReading, PositionSample, RecorderStatus, SensorSample,
+    SupervisorEvent, SupervisorStatus, TorqueSample, ValveSample,
 };
 
 #[cfg(not(target_endian = "little"))]
@@ -73,7 +73,7 @@ pub trait KindVisitor {
 }
 
 /// Every recordable kind.
-pub const KINDS: [&SampleKind; 11] = [
+pub const KINDS: [&SampleKind; 12] = [
     &PlantReading::KIND,
     &SensorSample::KIND,
     &FrictionSample::KIND,
@@ -83,13 +83,14 @@ pub const KINDS: [&SampleKind; 11] = [
     &SupervisorStatus::KIND,
     &RecorderStatus::KIND,
     &Handover::KIND,
+    &HandoverAck::KIND,
     &SupervisorEvent::KIND,
     &BenchSample::KIND,
 ];
 
 /// The stack's own services and what they carry: the recorder subscribes
 /// to these before their publishers exist, discovery finds the rest.
-pub const STACK_SERVICES: [(&str, &SampleKind); 10] = [
+pub const STACK_SERVICES: [(&str, &SampleKind); 11] = [
     (crate::service::PLANT_READING, &PlantReading::KIND),
     (crate::service::SENSOR, &SensorSample::KIND),
     (crate::service::FRICTION, &FrictionSample::KIND),
@@ -100,6 +101,7 @@ pub const STACK_SERVICES: [(&str, &SampleKind); 10] = [
     (crate::service::RECORDER_STATUS, &RecorderStatus::KIND),
     (crate::service::SUPERVISOR_EVENTS, &SupervisorEvent::KIND),
     (crate::service::HANDOVER, &Handover::KIND),
+    (crate::service::HANDOVER_ACK, &HandoverAck::KIND),
 ];
 
 /// Visits the type named `type_name`; `None` for a type we do not know.
@@ -117,6 +119,7 @@ pub fn visit_kind<V: KindVisitor>(type_name: &str, visitor: V) -> Option<V::Outp
         n if is::<SupervisorStatus>(n) => visitor.visit::<SupervisorStatus>(),
         n if is::<RecorderStatus>(n) => visitor.visit::<RecorderStatus>(),
         n if is::<Handover>(n) => visitor.visit::<Handover>(),
+        n if is::<HandoverAck>(n) => visitor.visit::<HandoverAck>(),
         n if is::<SupervisorEvent>(n) => visitor.visit::<SupervisorEvent>(),
         n if is::<BenchSample>(n) => visitor.visit::<BenchSample>(),
         _ => return None,
@@ -193,6 +196,12 @@ recordable!(
     "Handover",
     stage_time_ns,
     "uint64 seq\nuint64 stage_time_ns\nuint64 at_seq\nuint32 new_pid\nuint32 stage\nuint32 variant\nuint32 reserved\n"
+);
+recordable!(
+    HandoverAck,
+    "HandoverAck",
+    stage_time_ns,
+    "uint64 handover_seq\nuint64 stage_time_ns\nuint64 at_seq\nuint32 pid\nuint32 taking\n"
 );
 recordable!(
     SupervisorEvent,
