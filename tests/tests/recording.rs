@@ -343,6 +343,23 @@ fn record_attaches_to_a_running_stack_and_replay_drives_a_process_with_it() {
             .output()
             .expect("record runs");
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        // Replaying into the live run is refused unless asked for.
+        let out = hydractl()
+            .args([
+                "replay",
+                file.to_str().expect("path"),
+                "--topics",
+                service::PLANT_READING,
+            ])
+            .env(PREFIX_ENV, scope.prefix())
+            .output()
+            .expect("replay runs");
+        assert_eq!(out.status.code(), Some(1));
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("a run is alive"),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     let recorded = summarize(&file).expect("recording");
     assert_eq!(recorded.truncated, None);

@@ -217,3 +217,21 @@ fn a_limit_cycling_baseline_comes_back_ever_later_and_its_bursts_are_bounded() {
     }
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_run_of_no_duration_starts_the_whole_stack_and_ends_cleanly() {
+    let _turn = serial();
+    let scope = unique_scope("zero");
+    for _ in 0..3 {
+        let out = run_to_end(&scope, &["--duration", "0"], Duration::from_secs(30));
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{stderr}");
+        assert!(!stderr.contains("Error"), "no process was stopped mid-start: {stderr}");
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            stdout.contains(" cycles,") && !stdout.starts_with("0 cycles,"),
+            "{stdout}"
+        );
+        assert!(scope.shm_files().is_empty(), "{:?}", scope.shm_files());
+    }
+}

@@ -136,6 +136,20 @@ impl RunScope {
         Ok(())
     }
 
+    /// iceoryx2 0.10 creates its node counter (`…_node.<version>.global_mgmt`
+    /// in /dev/shm) writable by every user, 0666, the only file of a run
+    /// that is; anyone could then disturb the run's node ids. The run's
+    /// files are its user's: owner only. One that is not ours (another
+    /// user's run on this prefix) is left as it is; its run says so.
+    fn restrict_node_counter(&self) {
+        use std::os::unix::fs::PermissionsExt;
+        for path in self.shm_files() {
+            if path.to_string_lossy().ends_with(".global_mgmt") {
+                let _ = std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600));
+            }
+        }
+    }
+
     /// This run's files in /dev/shm.
     pub fn shm_files(&self) -> Vec<PathBuf> {
         std::fs::read_dir("/dev/shm")
@@ -253,6 +267,7 @@ impl Bus {
                     .permission_problem()
                     .unwrap_or_else(|| BusError::ipc(format!("creating node {name}"), e))
             })?;
+        scope.restrict_node_counter();
         let bus = Self {
             node,
             scope: scope.clone(),
@@ -283,4 +298,25 @@ impl Bus {
 /// where the supervisor kills and restarts processes by design.
 pub fn quiet_ipc_logging() {
     set_log_level_from_env_or(LogLevel::Error);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::PermissionsExt;
+
+    #[test]
+    fn every_file_of_a_run_is_its_users_alone() {
+        let scope = RunScope::new(&format!("t{}_mode_", std::process::id() % 100_000)).expect("prefix");
+        scope.remove_all_files().expect("clean start");
+        let bus = Bus::open(&scope, "probe").expect("node");
+        let files = scope.shm_files();
+        assert!(!files.is_empty());
+        for path in files {
+            let mode = std::fs::metadata(&path).expect("metadata").permissions().mode() & 0o777;
+            assert_eq!(mode & 0o077, 0, "{} is {mode:o}", path.display());
+        }
+        drop(bus);
+        scope.clean_stale().expect("clean");
+    }
 }

@@ -68,6 +68,13 @@ pub fn run_loop(
     inside_wait.remove(Signal::SIGINT);
     inside_wait.remove(Signal::SIGTERM);
     let mut next_tick = tick.map(|period| Instant::now() + period);
+    // A signal that came before the mask (during start-up) was taken by
+    // iceoryx2's handler then, and will not interrupt the wait below.
+    if bus.termination_requested() {
+        nix::sys::signal::pthread_sigmask(SigmaskHow::SIG_SETMASK, Some(&outside_wait), None)
+            .map_err(|e| BusError::ipc("restoring the signal mask", e))?;
+        return Ok(LoopExit::Signal);
+    }
     let result = (|| loop {
         let timeout = next_tick.map(|at| TimeSpec::from_duration(at.saturating_duration_since(Instant::now())));
         match ppoll(&mut fds, timeout, Some(inside_wait)) {

@@ -35,6 +35,10 @@ pub struct ReplayArgs {
     /// Only these services (comma-separated) [default: every one recorded].
     #[arg(long, value_delimiter = ',')]
     topics: Vec<String>,
+    /// Publish even though a run is alive under this prefix: its loop takes
+    /// the replayed samples as its own (a bench rig, never a machine).
+    #[arg(long)]
+    into_live_run: bool,
 }
 
 #[derive(clap::Subcommand)]
@@ -151,6 +155,14 @@ pub fn replay(args: ReplayArgs) -> Result<()> {
     entries.sort_by_key(|e| e.log_time_ns);
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
+    if run_alive(&scope)? && !args.into_live_run {
+        bail!(
+            "a run is alive under the prefix `{}`: replaying into it would feed its loop old samples as its own \
+             (set {} to a prefix of the replay's own, or pass --into-live-run on a bench rig)",
+            scope.prefix(),
+            hydractl_bus::PREFIX_ENV
+        );
+    }
     let bus = Bus::open(&scope, "replay")?;
     let outlets: Vec<Box<dyn Republisher>> = topics
         .iter()

@@ -26,7 +26,8 @@ pub struct RunArgs {
     /// Configuration file [default: the built-in config/sim.toml].
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Seconds to run; without it, until Ctrl-C or SIGTERM.
+    /// Seconds to run, counted from the loop's first cycle (0: start the
+    /// whole stack, run one cycle, stop); without it, until Ctrl-C or SIGTERM.
     #[arg(long)]
     duration: Option<f64>,
     /// Write the run's summary as JSON.
@@ -257,7 +258,11 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     let plant: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 4)?;
     let status: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 4)?;
     let started = Instant::now();
-    let end = args.duration.map(|d| started + Duration::from_secs_f64(d.max(0.0)));
+    // The duration runs from the loop's first cycle: a run is never stopped
+    // while its processes are still starting (their start-up is not made to
+    // be interrupted), however short it is asked to be.
+    let duration = args.duration.map(|d| Duration::from_secs_f64(d.max(0.0)));
+    let mut end: Option<Instant> = None;
     let live = std::io::stderr().is_terminal();
     eprintln!("{}", LiveLine::header(config.machine.is_some()));
     // From the reading to each stage's output; the valve's is the
@@ -408,6 +413,9 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                 } else {
                     eprintln!("{line}");
                 }
+            }
+            if cycles > 0 && end.is_none() {
+                end = duration.map(|d| now + d);
             }
             Ok(if end.is_some_and(|end| now >= end) {
                 Flow::Stop
