@@ -413,6 +413,11 @@ impl Supervisor {
                 valve_safe_after: None,
             };
             if child.reap() {
+                eprintln!(
+                    "supervisor: {} (pid {pid}) exited after reading {}",
+                    child.name,
+                    last_seq.unwrap_or(0)
+                );
                 faults[i] = Some(fault(code::EVENT_CRASH));
                 cleanup_needed = true;
                 restarting[i] = child.after_stop(now, policy);
@@ -429,6 +434,11 @@ impl Supervisor {
                     hung_after,
                 )
             {
+                eprintln!(
+                    "supervisor: {} (pid {pid}) hung: no output for {} ms while its input flowed; killed",
+                    child.name,
+                    silent_for.as_millis()
+                );
                 faults[i] = Some(fault(code::EVENT_HANG));
                 child.kill_hung();
                 cleanup_needed = true;

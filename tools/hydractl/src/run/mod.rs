@@ -119,13 +119,34 @@ struct PlantSwitchSummary {
     detected_after_ms: f64,
 }
 
+impl FaultSummary {
+    /// One line for the terminal: what happened, and how the loop came through it.
+    fn says(&self) -> String {
+        let valve = self
+            .valve_safe_after_periods
+            .map_or("the valve had nothing stale".to_owned(), |p| {
+                format!("valve safe after {p} periods")
+            });
+        let back = match (self.restarted_after_ms, &self.restarted_as) {
+            (Some(ms), Some(variant)) => format!("restarted as {variant} after {ms:.0} ms"),
+            (Some(ms), None) => format!("restarted after {ms:.0} ms"),
+            (None, _) => "left down".to_owned(),
+        };
+        format!(
+            "{} (pid {}): {} after reading {}, found after {:.0} ms; {valve}; {back}",
+            self.process, self.pid, self.kind, self.last_seq, self.detected_after_ms
+        )
+    }
+}
+
 #[derive(Serialize)]
 struct FaultSummary {
     process: String,
     /// `crash` (it exited), `hang` (no output while its input flowed),
     /// `misbehaving` (the valve rejected its commands as garbage, reading
-    /// after reading) or `limit_cycle` (the valve found its commands
-    /// limit-cycling and held neutral).
+    /// after reading), `limit_cycle` (the valve found its commands
+    /// limit-cycling and held neutral) or `spin` (it took more than its
+    /// share of the loop's CPU, starving the processes beside it).
     kind: &'static str,
     pid: u32,
     /// The last reading it answered.
@@ -369,7 +390,7 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                     | code::EVENT_MISBEHAVING
                     | code::EVENT_LIMIT_CYCLE
                     | code::EVENT_SPIN => {
-                        faults_seen.push(FaultSummary {
+                        let fault = FaultSummary {
                             process: name_str(&e.process).to_owned(),
                             kind: match e.kind {
                                 code::EVENT_CRASH => "crash",
@@ -386,7 +407,10 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                             restarted_after_ms: (e.restarted_after_ns != u64::MAX)
                                 .then_some(e.restarted_after_ns as f64 * 1e-6),
                             restarted_as: Some(name_str(&e.to).to_owned()).filter(|v| !v.is_empty()),
-                        });
+                        };
+                        // Said as it happens, above the live line.
+                        eprintln!("\n{}", fault.says());
+                        faults_seen.push(fault);
                     }
                     _ => {}
                 }
