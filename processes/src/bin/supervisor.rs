@@ -28,7 +28,7 @@ fn main() -> Result<()> {
     let mut failure = None;
     let outcome = supervisor.start(&started.bus).and_then(|()| {
         run_loop(&[], Some(Duration::from_millis(5)), &started.bus, |_| {
-            hydractl_bus::guarded(&mut failure, || supervisor.tick(Instant::now()))
+            hydractl_bus::guarded(&mut failure, || supervisor.tick(&started.bus, Instant::now()))
         })?;
         failure.map_or(Ok(()), Err)
     });

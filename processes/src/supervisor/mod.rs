@@ -10,6 +10,7 @@ mod heartbeats;
 mod recorder;
 mod seat;
 mod status;
+mod strangers;
 mod swaps;
 mod valve_log;
 
@@ -30,6 +31,7 @@ use heartbeats::{Heartbeats, OuterLoopWatch};
 use recorder::RecorderChild;
 use seat::Seat;
 use status::status_of;
+use strangers::Strangers;
 use swaps::Swaps;
 
 /// The supervisor's own ports on the loop's services and its command service.
@@ -75,6 +77,7 @@ pub struct Supervisor {
     /// The previous round: a round that comes late means the supervisor
     /// itself did not run, and the whole computer stalled.
     last_tick: Option<Instant>,
+    strangers: Strangers,
 }
 
 impl Supervisor {
@@ -132,6 +135,7 @@ impl Supervisor {
             misbehaving_handled: None,
             cpu: vec![CpuWatch::default(); count],
             last_tick: None,
+            strangers: Strangers::new(),
         })
     }
 
@@ -163,7 +167,7 @@ impl Supervisor {
     /// One round of watching, every few milliseconds: heartbeats, the
     /// machine's loss, misbehaving controllers, crashes and hangs,
     /// restarts, commands, swaps and the status.
-    pub fn tick(&mut self, now: Instant) -> Result<()> {
+    pub fn tick(&mut self, bus: &Bus, now: Instant) -> Result<()> {
         let Self {
             scope,
             policy,
@@ -184,6 +188,7 @@ impl Supervisor {
             misbehaving_handled,
             cpu,
             last_tick,
+            strangers,
         } = self;
         let Some(Ports {
             commands,
@@ -509,6 +514,26 @@ impl Supervisor {
             other => other,
         };
         swaps.tick(scope, children, request, last_reading.map(|r| r.sensor_seq), now)?;
+        // Publishers that are none of the run's processes.
+        let mut ours: Vec<u32> = children
+            .iter()
+            .chain(seat.spare.iter())
+            .filter_map(Supervised::pid)
+            .collect();
+        ours.extend(recorder.as_ref().and_then(|r| r.child.pid()));
+        ours.extend(swaps.standby_pid());
+        ours.push(own_pid);
+        for (pid, name) in strangers.look(bus, now, &ours) {
+            eprintln!("supervisor: process {pid} publishes on {name} and is not one of the run's: a stranger");
+            swaps.publish_plant_event(
+                code::EVENT_STRANGER,
+                last_reading.map_or(0, |r| r.sensor_seq),
+                Duration::ZERO,
+                name.trim_start_matches("hydractl/"),
+                ("", ""),
+                pid,
+            )?;
+        }
         if now.saturating_duration_since(*last_status) >= Duration::from_millis(100) {
             *last_status = now;
             let recorder = recorder.as_ref().map(|r| &r.child);

@@ -377,6 +377,11 @@ impl Swaps {
         }
     }
 
+    /// The new process of a swap under way.
+    pub(super) fn standby_pid(&self) -> Option<u32> {
+        self.current.as_ref().and_then(|swap| swap.child.pid())
+    }
+
     /// The plant's newest reading: whether the valve's own timeout holds it neutral.
     pub(super) fn note_reading(&mut self, reading: &hydractl_samples::PlantReading) {
         if reading.amplifier_neutral_for > 0 {

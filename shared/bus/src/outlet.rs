@@ -89,6 +89,23 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> PublisherWatch<T> {
             .as_ref()
             .map_or(0, |service| service.dynamic_config().number_of_publishers())
     }
+
+    /// The process id of each publisher on the service (an iceoryx2 node id
+    /// carries its creator's): who may be a stranger to the run.
+    pub fn publisher_pids(&mut self, bus: &Bus) -> Vec<u32> {
+        use iceoryx2::service::port_factory::PortFactory;
+        self.publishers(bus);
+        let mut pids = Vec::new();
+        if let Some(service) = &self.service {
+            service.dynamic_config().list_publishers(|details| {
+                if let Ok(pid) = details.node_id.pid::<ipc::Service>() {
+                    pids.push(pid.value() as u32);
+                }
+                CallbackProgression::Continue
+            });
+        }
+        pids
+    }
 }
 
 /// Publishes samples of one service and wakes its listeners.

@@ -115,6 +115,9 @@ pub mod code {
     /// A process took more than its share of the loop's CPU for too long
     /// (a busy loop at the loop's priority): it was killed and restarted.
     pub const EVENT_SPIN: u32 = 8;
+    /// A process that is none of the run's publishes on one of its
+    /// services (`process`: the service, `pid`: the stranger).
+    pub const EVENT_STRANGER: u32 = 9;
 
     pub fn variant_name(variant: u32) -> &'static str {
         match variant {

@@ -82,6 +82,9 @@ struct RunSummary {
     processes: Vec<ProcessSummary>,
     /// Processes that crashed or hung, and how the stack recovered.
     faults: Vec<FaultSummary>,
+    /// Processes that are none of the run's and published on one of its
+    /// services ([SAFETY.md](../../SAFETY.md), H10).
+    strangers: Vec<StrangerSummary>,
     /// Controller swaps while the run ran, as the supervisor judged them.
     swaps: Vec<SwapSummary>,
     /// Swaps asked for that did not happen: the running controller stayed.
@@ -137,6 +140,15 @@ impl FaultSummary {
             self.process, self.pid, self.kind, self.last_seq, self.detected_after_ms
         )
     }
+}
+
+#[derive(Serialize)]
+struct StrangerSummary {
+    pid: u32,
+    /// The service it published on, without the `hydractl/` in front.
+    service: String,
+    /// The loop's newest reading when it was found.
+    at_seq: u64,
 }
 
 #[derive(Serialize)]
@@ -307,6 +319,7 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 256)?;
     let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
     let (mut swaps, mut swap_failures, mut faults_seen) = (Vec::new(), Vec::new(), Vec::new());
+    let mut strangers = Vec::new();
     let mut plant_switches = Vec::new();
     let mut on_simulation = true;
     // Each plant counts its own late commands.
@@ -382,6 +395,18 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                             at_seq: e.sensor_seq,
                             detected_after_ms: e.detected_after_ns as f64 * 1e-6,
                         });
+                    }
+                    code::EVENT_STRANGER => {
+                        let stranger = StrangerSummary {
+                            pid: e.pid,
+                            service: name_str(&e.process).to_owned(),
+                            at_seq: e.sensor_seq,
+                        };
+                        eprintln!(
+                            "\na stranger, process {}, publishes on the run's {} (at reading {})",
+                            stranger.pid, stranger.service, stranger.at_seq
+                        );
+                        strangers.push(stranger);
                     }
                     code::EVENT_SWAP => swaps.push(swap),
                     code::EVENT_SWAP_FAILED => swap_failures.push(swap),
@@ -481,6 +506,7 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
         valve_fault_cycles: faults,
         processes,
         faults: faults_seen,
+        strangers,
         swaps,
         swap_failures,
         plant: if on_simulation { "simulation" } else { "machine" },
