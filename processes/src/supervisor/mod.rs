@@ -562,6 +562,7 @@ impl Supervisor {
             swaps,
             mut seat,
             ports,
+            strangers,
             ..
         } = self;
         let deadline = Instant::now() + Duration::from_millis(policy.stop_timeout_ms);
@@ -584,7 +585,7 @@ impl Supervisor {
             r.child.finish_stop(Instant::now() + Duration::from_secs(10));
         }
         // Ports before their node: a port keeps its node alive.
-        drop((swaps, seat, ports));
+        drop((swaps, seat, ports, strangers));
         drop(bus);
         Ok(scope.clean_stale()?)
     }

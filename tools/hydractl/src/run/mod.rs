@@ -174,6 +174,10 @@ struct FaultSummary {
     /// A misbehaving controller: the variant it was restarted into.
     #[serde(skip_serializing_if = "Option::is_none")]
     restarted_as: Option<String>,
+    /// The tracking error's largest magnitude over the second after the
+    /// fault's account arrived (its process back), rad: whether the
+    /// restart shook the load. Null when the run ended before that second.
+    tracking_error_max_after_rad: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -318,8 +322,12 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     let mut cycles_at_last_print = 0u64;
     let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 256)?;
     let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
-    let (mut swaps, mut swap_failures, mut faults_seen) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut swaps, mut swap_failures) = (Vec::new(), Vec::new());
+    let mut faults_seen: Vec<FaultSummary> = Vec::new();
     let mut strangers = Vec::new();
+    // Faults whose second after is still being watched: (index, errors seen then).
+    let mut after_fault: Vec<(usize, u64)> = Vec::new();
+    let per_second = config.timing.control_rate_hz.round() as u64;
     let mut plant_switches = Vec::new();
     let mut on_simulation = true;
     // Each plant counts its own late commands.
@@ -356,6 +364,13 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                 by_stage[2].record_between(p.sensor_time_ns, p.stage_time_ns);
                 let e = p.reference_angle - p.angle;
                 tracking.push(e);
+                if after_fault
+                    .first()
+                    .is_some_and(|&(_, at)| tracking.count() >= at + per_second)
+                {
+                    let (i, _) = after_fault.remove(0);
+                    faults_seen[i].tracking_error_max_after_rad = Some(tracking.last_second().max_abs);
+                }
             }
             if let Some(p) = plant.latest()? {
                 late_by_source[usize::from(p.source == hydractl_samples::source::MACHINE)] = p.late_commands;
@@ -432,7 +447,9 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                             restarted_after_ms: (e.restarted_after_ns != u64::MAX)
                                 .then_some(e.restarted_after_ns as f64 * 1e-6),
                             restarted_as: Some(name_str(&e.to).to_owned()).filter(|v| !v.is_empty()),
+                            tracking_error_max_after_rad: None,
                         };
+                        after_fault.push((faults_seen.len(), tracking.count()));
                         // Said as it happens, above the live line.
                         eprintln!("\n{}", fault.says());
                         faults_seen.push(fault);

@@ -102,6 +102,11 @@ impl Tracking {
         self.filled = (self.filled + 1).min(self.recent.len());
     }
 
+    /// Errors pushed since the start.
+    pub(super) fn count(&self) -> u64 {
+        self.count
+    }
+
     pub(super) fn since_start(&self) -> ErrorStats {
         ErrorStats {
             rms: (self.sum_squares / self.count.max(1) as f64).sqrt(),
