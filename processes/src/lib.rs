@@ -21,7 +21,8 @@ pub struct ProcessArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Plant only: resume from the loop's last reading,
-    /// `SEQ,ANGLE_RAD,P_A_PA,P_B_PA` (the supervisor passes it on a restart).
+    /// `SEQ,ANGLE_RAD,P_A_PA,P_B_PA[,VELOCITY_RAD_S]` (the supervisor passes
+    /// it on a restart).
     #[arg(long, value_parser = parse_resume)]
     pub resume: Option<Resume>,
     #[command(flatten)]
@@ -90,18 +91,26 @@ pub struct Resume {
     pub angle: f64,
     pub p_a: f64,
     pub p_b: f64,
+    /// The load's velocity, rad/s: a plant restarted at rest under a moving
+    /// load would jolt it.
+    pub velocity: f64,
 }
 
 impl Resume {
     pub fn to_arg(&self) -> String {
-        format!("{},{},{},{}", self.seq, self.angle, self.p_a, self.p_b)
+        format!(
+            "{},{},{},{},{}",
+            self.seq, self.angle, self.p_a, self.p_b, self.velocity
+        )
     }
 }
 
 fn parse_resume(text: &str) -> Result<Resume, String> {
     let parts: Vec<&str> = text.split(',').collect();
-    let [seq, angle, p_a, p_b] = parts.as_slice() else {
-        return Err(format!("`{text}` is not SEQ,ANGLE,P_A,P_B"));
+    let (seq, angle, p_a, p_b, velocity) = match parts.as_slice() {
+        [seq, angle, p_a, p_b] => (seq, angle, p_a, p_b, None),
+        [seq, angle, p_a, p_b, velocity] => (seq, angle, p_a, p_b, Some(velocity)),
+        _ => return Err(format!("`{text}` is not SEQ,ANGLE,P_A,P_B[,VELOCITY]")),
     };
     let number = |name: &str, v: &str| -> Result<f64, String> {
         v.trim()
@@ -118,6 +127,7 @@ fn parse_resume(text: &str) -> Result<Resume, String> {
         angle: number("ANGLE", angle)?,
         p_a: number("P_A", p_a)?,
         p_b: number("P_B", p_b)?,
+        velocity: velocity.map_or(Ok(0.0), |v| number("VELOCITY", v))?,
     })
 }
 
@@ -253,9 +263,15 @@ mod tests {
             angle: -0.25,
             p_a: 8e6,
             p_b: 7.5e6,
+            velocity: 0.3,
         };
         assert_eq!(parse_resume(&r.to_arg()), Ok(r));
         assert!(parse_resume("1,2,3").is_err());
+        assert_eq!(
+            parse_resume("1,0,0,0").map(|r| r.velocity),
+            Ok(0.0),
+            "at rest when not given"
+        );
         assert!(parse_resume("x,0,0,0").is_err());
         assert!(parse_resume("1,NaN,0,0").is_err());
     }

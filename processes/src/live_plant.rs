@@ -64,7 +64,8 @@ pub fn run(kind: PlantKind) -> Result<()> {
     let mut seat = PlantSeat::new(!started.args.standby);
     // A restarted plant resumes from what the loop last saw of it: its
     // sequence goes on (the reference is a function of it) and its state
-    // starts from the last reading, at rest.
+    // starts from the last reading, moving as the sensor stage last
+    // estimated (at rest, it would jolt a moving load).
     let mut seq = 0u64;
     if let Some(resume) = started.args.resume {
         seq = resume.seq + 1;
@@ -73,6 +74,8 @@ pub fn run(kind: PlantKind) -> Result<()> {
         state.load_angle = resume.angle;
         state.p_a = resume.p_a;
         state.p_b = resume.p_b;
+        state.velocity = resume.velocity;
+        state.load_velocity = resume.velocity;
         plant.reset_to(state);
         sensors.home(resume.angle);
     }

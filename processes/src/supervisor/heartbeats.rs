@@ -16,6 +16,9 @@ pub(super) struct Heartbeats {
     torque: Reader<TorqueSample>,
     valve: Reader<ValveSample>,
     outer: OuterLoopWatch,
+    /// The sensor stage's newest velocity estimate, rad/s: a restarted
+    /// plant resumes moving as the load was.
+    pub(super) velocity: f64,
 }
 
 /// Whether the outer loop's output limit-cycles by itself, judged as the
@@ -66,6 +69,7 @@ impl Heartbeats {
             torque: Reader::open(bus, service::TORQUE, 4)?,
             valve: Reader::open(bus, service::VALVE, 4)?,
             outer,
+            velocity: 0.0,
         })
     }
 
@@ -91,9 +95,12 @@ impl Heartbeats {
         }
         Ok([
             reading.map(|r| Answer::new(r.sensor_seq, r.sensor_time_ns)),
-            self.sensor
-                .latest()?
-                .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
+            self.sensor.latest()?.map(|s| {
+                if s.velocity.is_finite() {
+                    self.velocity = s.velocity;
+                }
+                Answer::new(s.sensor_seq, s.stage_time_ns)
+            }),
             self.friction
                 .latest()?
                 .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),

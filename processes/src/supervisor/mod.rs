@@ -494,6 +494,7 @@ impl Supervisor {
                             angle: r.true_angle,
                             p_a: r.p_a,
                             p_b: r.p_b,
+                            velocity: heartbeats.velocity,
                         }
                         .to_arg(),
                     ],
