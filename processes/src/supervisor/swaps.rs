@@ -40,6 +40,10 @@ pub(super) struct Swaps {
     /// neutral (the plant says so): how soon the valve was safe when the
     /// valve process itself was gone.
     amplifier_neutral_from: Option<u64>,
+    /// The valve's newest neutral for silence (no reading, no command): its
+    /// reading and when, by the valve's clock.
+    last_silence: Option<(u64, u64)>,
+    period_ns: u64,
 }
 
 struct SwapInProgress {
@@ -78,7 +82,13 @@ pub(super) const HANDOVER_LEAD: u64 = 20;
 const STANDBY_OUTPUTS: u32 = 100;
 
 impl Swaps {
-    pub(super) fn open(bus: &Bus, dir: PathBuf, config: Option<PathBuf>, cascade: bool) -> Result<Self> {
+    pub(super) fn open(
+        bus: &Bus,
+        dir: PathBuf,
+        config: Option<PathBuf>,
+        cascade: bool,
+        period: Duration,
+    ) -> Result<Self> {
         Ok(Self {
             handovers: Outlet::open(bus, service::HANDOVER)?,
             events: Outlet::open(bus, service::SUPERVISOR_EVENTS)?,
@@ -96,6 +106,8 @@ impl Swaps {
             handover_seq: 0,
             event_seq: 0,
             amplifier_neutral_from: None,
+            last_silence: None,
+            period_ns: period.as_nanos().max(1) as u64,
         })
     }
 
@@ -352,6 +364,10 @@ impl Swaps {
     fn take_valve_samples(&mut self) -> Result<()> {
         while let Some(v) = self.valve.next()? {
             self.log.push(v.sensor_seq, v.command, v.faults);
+            // Neutral on the valve's own clock, answering no command.
+            if v.faults & hydractl_samples::fault::STALE != 0 && v.requested.is_nan() {
+                self.last_silence = Some((v.sensor_seq, v.stage_time_ns));
+            }
         }
         Ok(())
     }
@@ -373,6 +389,17 @@ impl Swaps {
             .map(|from| from.saturating_sub(seq + 2));
         match (self.log.valve_safe_after_periods(seq), by_amplifier) {
             (Some(a), Some(b)) => Some(a.min(b)),
+            (None, None) => {
+                // No reading came after its last (the plant itself gone, or
+                // every stage starved): the valve's silence timeout made it
+                // safe, counted in periods of the loop's time.
+                let last_output_ns = clock::now_ns()
+                    .saturating_sub(fault.detected_at.elapsed().as_nanos() as u64)
+                    .saturating_sub(fault.silent_for.as_nanos() as u64);
+                self.last_silence
+                    .filter(|&(at, time_ns)| at >= seq && time_ns > last_output_ns)
+                    .map(|(_, time_ns)| ((time_ns - last_output_ns) / self.period_ns).saturating_sub(1))
+            }
             (a, b) => a.or(b),
         }
     }
