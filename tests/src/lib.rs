@@ -114,6 +114,36 @@ pub fn start_run(scope: &RunScope, args: &[&str]) -> RunGuard {
     )
 }
 
+/// A `hydractl run` of `duration_s` writing its summary into `dir`, to be
+/// ended by [`SummarizedRun::finish`].
+pub struct SummarizedRun {
+    pub run: RunGuard,
+    summary: PathBuf,
+}
+
+impl SummarizedRun {
+    pub fn start(scope: &RunScope, dir: &Path, duration_s: &str) -> Self {
+        let summary = dir.join("summary.json");
+        let run = start_run(
+            scope,
+            &[
+                "--duration",
+                duration_s,
+                "--summary-json",
+                summary.to_str().expect("path"),
+            ],
+        );
+        Self { run, summary }
+    }
+
+    /// SIGTERM, a clean exit; the run's summary.
+    pub fn finish(mut self) -> serde_json::Value {
+        signal(self.run.id(), nix::sys::signal::Signal::SIGTERM);
+        assert!(wait_exit(&mut self.run.0, Duration::from_secs(30)).success());
+        read_json(&self.summary)
+    }
+}
+
 /// Runs `hydractl run` to its end, or fails the test after `timeout`.
 pub fn run_to_end(scope: &RunScope, args: &[&str], timeout: Duration) -> Output {
     let mut guard = RunGuard(

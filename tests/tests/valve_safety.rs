@@ -241,17 +241,8 @@ fn a_stranger_publishing_commands_is_found_and_reported() {
     let _turn = serial();
     let scope = unique_scope("stranger");
     let dir = scratch_dir("stranger");
-    let summary_path = dir.join("summary.json");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--duration",
-            "30",
-            "--summary-json",
-            summary_path.to_str().expect("path"),
-        ],
-    );
+    let run = SummarizedRun::start(&scope, &dir, "30");
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     // This test's own process publishes torque commands into the run:
     // full swing, tagged with readings the valve has seen and has not.
@@ -289,9 +280,7 @@ fn a_stranger_publishing_commands_is_found_and_reported() {
     while let Ok(Some(v)) = observer.valve.next() {
         driven_by_stranger += usize::from(v.variant == STRANGER_VARIANT && v.faults == 0 && v.command.abs() > 0.5);
     }
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary = read_json(&summary_path);
+    let summary = run.finish();
     let strangers = summary["strangers"].as_array().expect("strangers");
     eprintln!("{}", summary["strangers"]);
     assert!(
@@ -312,17 +301,8 @@ fn a_restarted_plant_does_not_shake_the_load() {
     let _turn = serial();
     let scope = unique_scope("plantkill");
     let dir = scratch_dir("plantkill");
-    let summary_path = dir.join("summary.json");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--duration",
-            "30",
-            "--summary-json",
-            summary_path.to_str().expect("path"),
-        ],
-    );
+    let run = SummarizedRun::start(&scope, &dir, "30");
     // Past the trajectory's fade-in and the start's own transient.
     assert!(observer.wait_healthy(3000, Duration::from_secs(20)), "the loop runs");
     for _ in 0..2 {
@@ -333,9 +313,7 @@ fn a_restarted_plant_does_not_shake_the_load() {
         observer.drain_valve();
         assert!(observer.wait_healthy(2000, Duration::from_secs(10)), "the loop resumes");
     }
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary = read_json(&summary_path);
+    let summary = run.finish();
     let faults = summary["faults"].as_array().expect("faults");
     assert_eq!(faults.len(), 2, "{summary}");
     for f in faults {
