@@ -22,10 +22,12 @@ fn main() -> Result<()> {
     let mut stage = PositionStage::with_variant(config, variant)?;
     let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
     let friction: Inlet<FrictionSample> = Inlet::open(bus, service::FRICTION, 4)?;
-    let out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION)?;
-    let standby_out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION_STANDBY)?;
     let running: Reader<PositionSample> = Reader::open(bus, service::POSITION, 4)?;
     let mut inbox = HandoverInbox::open(bus, code::STAGE_POSITION)?;
+    let standby_out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION_STANDBY)?;
+    // Its output last: a fresh plant starts once every stage publishes,
+    // and this one must by then be ready for the first reading.
+    let out: Outlet<PositionSample> = Outlet::open(bus, service::POSITION)?;
     let mut role = Role::new(started.args.standby);
     let structure = match stage.structure() {
         Structure::Position => code::STRUCTURE_POSITION,

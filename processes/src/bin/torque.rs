@@ -23,10 +23,12 @@ fn main() -> Result<()> {
     let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 4)?;
     let friction: Reader<FrictionSample> = Reader::open(bus, service::FRICTION, 4)?;
     let position: Inlet<PositionSample> = Inlet::open(bus, service::POSITION, 4)?;
-    let out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE)?;
-    let standby_out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE_STANDBY)?;
     let running: Reader<TorqueSample> = Reader::open(bus, service::TORQUE, 4)?;
     let mut inbox = HandoverInbox::open(bus, code::STAGE_TORQUE)?;
+    let standby_out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE_STANDBY)?;
+    // Its output last: a fresh plant starts once every stage publishes,
+    // and this one must by then be ready for the first reading.
+    let out: Outlet<TorqueSample> = Outlet::open(bus, service::TORQUE)?;
     let mut role = Role::new(started.args.standby);
     let variant = match stage.variant() {
         TorqueVariant::Pid => code::VARIANT_PID,

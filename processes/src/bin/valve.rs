@@ -61,6 +61,11 @@ impl<D: ValveDevice> Drop for Actuator<D> {
 fn main() -> Result<()> {
     let started = hydractl_processes::start("valve")?;
     let bus = &started.bus;
+    let mut stage = ValveStage::new(&started.config)?;
+    let torque: Inlet<TorqueSample> = Inlet::open(bus, service::TORQUE, 4)?;
+    let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
+    // Its output once its inputs are open (a fresh plant starts once every
+    // stage publishes), and at once neutral, before any input is read.
     let mut actuator = Actuator {
         device: SimulatedValve,
         out: Outlet::open(bus, service::VALVE)?,
@@ -68,9 +73,6 @@ fn main() -> Result<()> {
         is_off: false,
     };
     actuator.off().context("valve: driving neutral at start")?;
-    let mut stage = ValveStage::new(&started.config)?;
-    let torque: Inlet<TorqueSample> = Inlet::open(bus, service::TORQUE, 4)?;
-    let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
     let silence_timeout = Duration::from_secs_f64(started.config.control.valve_guard.silence_timeout_ms / 1000.0);
     // Silence is counted from the last thing the valve drove: with readings
     // coming and commands not, the guard drives neutral reading by reading;
