@@ -73,6 +73,11 @@ impl Heartbeats {
         })
     }
 
+    /// The outer loop's limit-cycle watch.
+    pub(super) fn outer_loop(&mut self) -> &mut OuterLoopWatch {
+        &mut self.outer
+    }
+
     /// The newest reading each of the pipeline's outputs answered since the
     /// last call (`None`: it did not advance), in `PIPELINE` order; keeps
     /// the plant's last reading for a restart.
@@ -110,12 +115,6 @@ impl Heartbeats {
                 .map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
             self.valve.latest()?.map(|s| Answer::new(s.sensor_seq, s.stage_time_ns)),
         ])
-    }
-}
-
-impl Heartbeats {
-    pub(super) fn outer_loop(&mut self) -> &mut OuterLoopWatch {
-        &mut self.outer
     }
 }
 
