@@ -11,6 +11,7 @@ mod validate;
 
 use std::path::{Path, PathBuf};
 
+use hydractl_can::profile::CanConfig;
 use hydractl_control::Trajectory;
 use hydractl_plant::{EffectsConfig, PlantParams, SensorParams};
 use serde::{Deserialize, Serialize};
@@ -51,6 +52,13 @@ pub enum ConfigError {
     Timing { path: PathBuf, reason: String },
     #[error("config {path}: [supervisor] {reason}")]
     Supervisor { path: PathBuf, reason: String },
+    #[error("config {path}: {source}")]
+    Can {
+        path: PathBuf,
+        source: hydractl_can::profile::ProfileError,
+    },
+    #[error("config {path}: [can] one period's frames do not fit the bus:\n{table}")]
+    CanBudget { path: PathBuf, table: String },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -91,6 +99,10 @@ pub struct Config {
     /// in standby and takes over when the machine is lost.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub machine: Option<MachineConfig>,
+    /// The machine's devices on CAN: with this table the sensor and valve
+    /// processes speak CANopen to them, over SocketCAN or the virtual bus.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub can: Option<CanConfig>,
 }
 
 /// The machine stand-in: the simulated plant's parameters, overridden.

@@ -43,6 +43,21 @@ impl Config {
                 });
             }
         }
+        if let Some(can) = &self.can {
+            let profile = can.resolve().map_err(|source| ConfigError::Can {
+                path: path.to_owned(),
+                source,
+            })?;
+            if self.timing.control_rate_hz.is_finite() && self.timing.control_rate_hz > 0.0 {
+                let budget = profile.budget((1e9 / self.timing.control_rate_hz) as u64);
+                if !budget.fits {
+                    return Err(ConfigError::CanBudget {
+                        path: path.to_owned(),
+                        table: budget.table(),
+                    });
+                }
+            }
+        }
         let t = &self.timing;
         if !(t.control_rate_hz.is_finite() && t.control_rate_hz > 0.0 && t.integration_rate_hz.is_finite()) {
             return Err(ConfigError::Timing {

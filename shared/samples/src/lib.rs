@@ -44,6 +44,14 @@ pub mod service {
     /// The machine's readings while the simulated plant drives the loop:
     /// it is alive, and the loop can go back to it.
     pub const PLANT_STANDBY: &str = "hydractl/plant/standby";
+    /// The virtual CAN bus `interface`: frames handed to the wire.
+    pub fn can_tx(interface: &str) -> String {
+        format!("hydractl/can/{interface}/tx")
+    }
+    /// The virtual CAN bus `interface`: frames that crossed it, to every station.
+    pub fn can_rx(interface: &str) -> String {
+        format!("hydractl/can/{interface}/rx")
+    }
 }
 
 /// Where a reading comes from: the machine, or the simulated plant. Zero,
@@ -145,6 +153,29 @@ pub mod code {
             _ => "?",
         }
     }
+}
+
+/// One CAN frame on the virtual bus. A station submits it on
+/// [`service::can_tx`]; the bus process delivers it to every station on
+/// [`service::can_rx`] once it has crossed the wire.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::CanFrameSample")]
+pub struct CanFrameSample {
+    /// Delivered: the bus's count of frames; submitted: the station's.
+    pub seq: u64,
+    /// Delivered: when the frame's last bit left the wire; submitted:
+    /// when it was handed over, ns.
+    pub time_ns: u64,
+    pub submitted_ns: u64,
+    /// Who sent it: the sending process's pid.
+    pub station: u32,
+    /// [`hydractl_can::Frame`]'s fields.
+    pub id: u32,
+    pub flags: u8,
+    pub len: u8,
+    pub reserved: [u8; 6],
+    pub data: [u8; 8],
 }
 
 /// What the plant's sensors read (on the vehicle: what arrives on the bus).

@@ -3,6 +3,7 @@
 mod bench_latency;
 mod bench_record;
 mod bench_stalls;
+mod can;
 mod control;
 mod ident;
 mod model;
@@ -62,6 +63,9 @@ enum Command {
     /// Read recordings.
     #[command(subcommand)]
     Mcap(recording::McapCommand),
+    /// The machine's CAN bus: a period's frame budget.
+    #[command(subcommand)]
+    Can(can::CanCommand),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -188,6 +192,7 @@ fn main() -> Result<()> {
         Command::Record(args) => recording::record(args),
         Command::Replay(args) => recording::replay(args),
         Command::Mcap(command) => recording::mcap(command),
+        Command::Can(command) => can::run(command),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
         Command::Bench(BenchCommand::Diagnose { durations, repeat }) => model::bench_diagnose(&durations, repeat),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),

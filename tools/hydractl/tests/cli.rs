@@ -530,3 +530,42 @@ fn status_json_says_no_run_is_alive() {
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
     assert_eq!(json["running"], false);
 }
+
+#[test]
+fn can_budget_says_whether_a_period_fits_the_bus() {
+    let out = hydractl().args(["can", "budget", "--json"]).output().expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let budget: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(budget["bitrate"], 1_000_000);
+    assert_eq!(budget["fits"], true);
+    assert_eq!(budget["frames"].as_array().expect("frames").len(), 6);
+    let dir = scratch("can");
+    let slow = dir.join("slow.toml");
+    let sim = concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/sim.toml");
+    std::fs::write(&slow, format!("base = {sim:?}\n[can]\nbitrate = 500000\n")).expect("config");
+    let out = hydractl()
+        .args(["can", "budget", "--config"])
+        .arg(&slow)
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(1));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("valve set point RPDO") && table.contains("does not fit"),
+        "{table}"
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("slow.toml") && stderr.contains("do not fit the bus"),
+        "{stderr}"
+    );
+    // `run` refuses it at load, with the same budget.
+    let out = hydractl()
+        .args(["run", "--duration", "1", "--config"])
+        .arg(&slow)
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("does not fit"));
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -211,6 +211,19 @@ pub fn run(args: RunArgs) -> Result<()> {
         check_writable(path, "--record")?;
     }
     let config = Config::load_or_default(args.config.as_deref())?;
+    if let Some(can) = &config.can {
+        // Running such a config on the simulated plant's shared memory
+        // would look like a run on the machine's devices.
+        bail!(
+            "the config's [can] table ({} on {}) describes the machine's CAN devices, which the live stack does not drive yet; \
+             `hydractl can budget` reads it",
+            can.interface,
+            match can.transport {
+                hydractl_can::profile::Transport::Virtual => "the virtual bus",
+                hydractl_can::profile::Transport::Socketcan => "SocketCAN",
+            }
+        );
+    }
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
         eprintln!("{e}");
     }

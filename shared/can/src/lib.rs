@@ -1,0 +1,29 @@
+//! The machine's CAN devices, as plain functions on frames: no sockets, no
+//! clocks, nothing that blocks. The sensor and valve processes, the
+//! simulated ECUs and the command line build and read frames only through
+//! this crate, so one frame layout has one place.
+//!
+//! - [`canopen`]: CiA 301, the communication profile every node speaks
+//!   (NMT, SYNC, EMCY, heartbeat, expedited SDO, PDOs and their mapping);
+//! - [`valve`]: CiA 408, the proportional valve (its device state machine,
+//!   set point and spool position);
+//! - [`encoder`]: CiA 406, the angle encoder;
+//! - [`pressure`]: CiA 404, the pressure transducers;
+//! - [`timing`]: how long a frame occupies the bus, stuffing included, and
+//!   whether a period's frames fit;
+//! - [`candump`]: can-utils' `candump -l` log lines;
+//! - [`wire`]: the virtual bus's wire: arbitration, bus time, faults;
+//! - [`profile`]: the `[can]` table of the config: nodes, COB-IDs,
+//!   mappings, scaling, bitrate and timeouts, checked for clashes.
+
+pub mod candump;
+pub mod canopen;
+pub mod encoder;
+mod frame;
+pub mod pressure;
+pub mod profile;
+pub mod timing;
+pub mod valve;
+pub mod wire;
+
+pub use frame::{CanError, Frame};

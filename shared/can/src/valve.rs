@@ -1,0 +1,344 @@
+//! CiA 408, the proportional valve (device type 0x198), as the Danfoss
+//! PVED-CC and Moog's valves implement it. The device state machine
+//! (DSM) follows the control word's four low bits, D (disabled), H (hold),
+//! M (active) and R (reset fault, on its rising edge); the status word
+//! reports the state in the same bits, R there meaning ready:
+//!
+//! | state | status word RMHD |
+//! |---|---|
+//! | not ready | 0000 |
+//! | init | 1000 |
+//! | disabled | 1001 |
+//! | hold (spool at neutral) | 1011 |
+//! | active (spool follows the set point) | 1111 |
+//! | fault init | 0000 after a fault |
+//! | fault disabled | 0001 |
+//! | fault hold (spool at neutral) | 0011 |
+//! | fault reaction | 0111 |
+//!
+//! A master keeps R high and steps Init (0x08) → Disabled (0x09) → Hold
+//! (0x0B) → Active (0x0F); to clear a fault it drops R (0x03) and raises
+//! it again (0x0B).
+
+use crate::CanError;
+
+/// The valve's objects.
+pub mod object {
+    pub const DEVICE_TYPE: u16 = 0x1000;
+    pub const DEVICE_TYPE_VALUE: u32 = 0x198;
+    pub const CONTROL_WORD: u16 = 0x6040;
+    pub const STATUS_WORD: u16 = 0x6041;
+    /// 1: set point from the bus.
+    pub const DEVICE_MODE: u16 = 0x6042;
+    pub const DEVICE_MODE_BUS: u8 = 1;
+    /// Sub-index 1, INT16.
+    pub const SET_POINT: u16 = 0x6300;
+    /// Sub-index 1, INT16: the spool's actual position.
+    pub const ACTUAL_VALUE: u16 = 0x6301;
+}
+
+/// Control words a master sends (R kept high but for a fault reset).
+pub mod control_word {
+    pub const DISABLED_BIT: u16 = 0x01;
+    pub const HOLD_BIT: u16 = 0x02;
+    pub const ACTIVE_BIT: u16 = 0x04;
+    pub const RESET_FAULT_BIT: u16 = 0x08;
+    pub const INIT: u16 = 0x08;
+    pub const DISABLED: u16 = 0x09;
+    pub const HOLD: u16 = 0x0B;
+    pub const ACTIVE: u16 = 0x0F;
+    /// R low; the next control word's R raises it and clears the fault.
+    pub const FAULT_RESET: u16 = 0x03;
+}
+
+/// ±16384 is ±100 % spool travel.
+pub const FULL_SCALE: i16 = 16384;
+/// PVED-CC: a set point of 32767 commands the float position.
+pub const FLOAT: i16 = 32767;
+
+/// The set point for a valve command in [-1, 1]; anything else, NaN
+/// included, is clamped or neutral: a garbled command never reaches the
+/// bus as travel.
+pub fn set_point(command: f64) -> i16 {
+    if !command.is_finite() {
+        return 0;
+    }
+    (command.clamp(-1.0, 1.0) * f64::from(FULL_SCALE)).round() as i16
+}
+
+/// The spool position in [-1, 1] (beyond ±1 when the valve reports it).
+pub fn spool_position(actual: i16) -> f64 {
+    f64::from(actual) / f64::from(FULL_SCALE)
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceState {
+    NotReady,
+    Init,
+    Disabled,
+    Hold,
+    Active,
+    FaultInit,
+    FaultDisabled,
+    FaultHold,
+    FaultReaction,
+}
+
+impl DeviceState {
+    pub fn status_word(self) -> u16 {
+        match self {
+            Self::NotReady | Self::FaultInit => 0b0000,
+            Self::Init => 0b1000,
+            Self::Disabled => 0b1001,
+            Self::Hold => 0b1011,
+            Self::Active => 0b1111,
+            Self::FaultDisabled => 0b0001,
+            Self::FaultHold => 0b0011,
+            Self::FaultReaction => 0b0111,
+        }
+    }
+
+    /// The state a status word reports. Not ready and fault init share
+    /// 0000; read as fault init once the valve had been ready.
+    pub fn from_status_word(word: u16, was_ready: bool) -> Self {
+        match word & 0x0F {
+            0b1000 => Self::Init,
+            0b1001 => Self::Disabled,
+            0b1011 => Self::Hold,
+            0b1111 => Self::Active,
+            0b0001 => Self::FaultDisabled,
+            0b0011 => Self::FaultHold,
+            0b0111 => Self::FaultReaction,
+            0b0000 if was_ready => Self::FaultInit,
+            0b0000 => Self::NotReady,
+            // 1010, 1100, … are no state of the DSM: a fault as far as the
+            // master is concerned, so the stack stays safe.
+            _ => Self::FaultHold,
+        }
+    }
+
+    pub fn is_fault(self) -> bool {
+        matches!(
+            self,
+            Self::FaultInit | Self::FaultDisabled | Self::FaultHold | Self::FaultReaction
+        )
+    }
+
+    /// Only in Active does the spool follow the set point; every other
+    /// state holds it at neutral or at its hydraulic fail-safe position.
+    pub fn follows_set_point(self) -> bool {
+        self == Self::Active
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::NotReady => "not ready",
+            Self::Init => "init",
+            Self::Disabled => "disabled",
+            Self::Hold => "hold",
+            Self::Active => "active",
+            Self::FaultInit => "fault init",
+            Self::FaultDisabled => "fault disabled",
+            Self::FaultHold => "fault hold",
+            Self::FaultReaction => "fault reaction",
+        }
+    }
+}
+
+/// The valve's own device state machine: what a CiA 408 valve does with
+/// the control words it receives and the faults it detects. The simulated
+/// valve ECU runs it; the master's bring-up is tested against it.
+#[derive(Debug, Clone, Copy)]
+pub struct StateMachine {
+    state: DeviceState,
+    last_control_word: u16,
+}
+
+impl Default for StateMachine {
+    fn default() -> Self {
+        Self::power_up()
+    }
+}
+
+impl StateMachine {
+    /// Powered and initialized: Init, waiting for a control word.
+    pub fn power_up() -> Self {
+        Self {
+            state: DeviceState::Init,
+            last_control_word: 0,
+        }
+    }
+
+    pub fn state(&self) -> DeviceState {
+        self.state
+    }
+
+    pub fn on_control_word(&mut self, word: u16) -> DeviceState {
+        let reset_edge =
+            word & control_word::RESET_FAULT_BIT != 0 && self.last_control_word & control_word::RESET_FAULT_BIT == 0;
+        self.last_control_word = word;
+        if self.state.is_fault() {
+            if !reset_edge || self.state == DeviceState::FaultReaction {
+                return self.state;
+            }
+            self.state = match self.state {
+                DeviceState::FaultHold => DeviceState::Hold,
+                DeviceState::FaultDisabled => DeviceState::Disabled,
+                _ => DeviceState::Init,
+            };
+        }
+        if self.state == DeviceState::NotReady {
+            return self.state;
+        }
+        // The requested level; every transition between the present state
+        // and the requested one is taken.
+        self.state = match word & 0x07 {
+            0b111 => DeviceState::Active,
+            0b011 | 0b010 | 0b110 => DeviceState::Hold,
+            0b001 | 0b101 => DeviceState::Disabled,
+            _ => DeviceState::Init,
+        };
+        // H without D, or M without H, is not a level of the DSM: the
+        // lower consistent one is taken.
+        if word & control_word::DISABLED_BIT == 0 {
+            self.state = DeviceState::Init;
+        }
+        self.state
+    }
+
+    /// A fault detected (an RPDO timeout, a lost bus): the fault reaction
+    /// brings the spool to neutral. Returns true when the fault is new
+    /// (an EMCY is due).
+    pub fn on_fault(&mut self) -> bool {
+        if self.state.is_fault() {
+            return false;
+        }
+        self.state = match self.state {
+            DeviceState::Init | DeviceState::NotReady => DeviceState::FaultInit,
+            DeviceState::Disabled => DeviceState::FaultDisabled,
+            _ => DeviceState::FaultHold,
+        };
+        true
+    }
+}
+
+/// The master's next control word to bring a valve reporting `state` to
+/// Active, given the last word it sent: Init → Disabled → Hold → Active,
+/// and a fault cleared by R low then high.
+pub fn next_control_word(state: DeviceState, last_sent: u16) -> u16 {
+    match state {
+        DeviceState::NotReady | DeviceState::Init => control_word::DISABLED,
+        DeviceState::Disabled => control_word::HOLD,
+        DeviceState::Hold | DeviceState::Active => control_word::ACTIVE,
+        DeviceState::FaultReaction => control_word::FAULT_RESET,
+        DeviceState::FaultInit | DeviceState::FaultDisabled | DeviceState::FaultHold => {
+            if last_sent & control_word::RESET_FAULT_BIT != 0 {
+                control_word::FAULT_RESET
+            } else {
+                control_word::HOLD
+            }
+        }
+    }
+}
+
+/// A NaN or out-of-range command is a programming error upstream; the
+/// frame carries neutral, and this names it for the caller's fault count.
+pub fn checked_set_point(command: f64) -> Result<i16, CanError> {
+    if !command.is_finite() || command.abs() > 1.0 {
+        return Err(CanError::Malformed {
+            cob_id: 0,
+            what: "valve set point",
+            reason: format!("command {command} is outside [-1, 1]; neutral is sent"),
+        });
+    }
+    Ok(set_point(command))
+}
+
+/// The raw value of an INT16 object as a PDO carries it.
+pub fn raw_i16(value: i16) -> u64 {
+    u64::from(value as u16)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn set_points_scale_to_sixteen_thousand_three_hundred_eighty_four() {
+        assert_eq!(set_point(1.0), 16384);
+        assert_eq!(set_point(-1.0), -16384);
+        assert_eq!(set_point(0.5), 8192);
+        assert_eq!(set_point(2.0), 16384);
+        assert_eq!(set_point(f64::NAN), 0);
+        assert_eq!(spool_position(-8192), -0.5);
+        assert!(checked_set_point(f64::NAN).is_err());
+        assert_eq!(checked_set_point(-0.25), Ok(-4096));
+    }
+
+    #[test]
+    fn the_bring_up_sequence_is_the_manuals() {
+        let mut valve = StateMachine::power_up();
+        let mut sent = Vec::new();
+        let mut last = 0;
+        while valve.state() != DeviceState::Active && sent.len() < 10 {
+            last = next_control_word(valve.state(), last);
+            sent.push(last);
+            valve.on_control_word(last);
+        }
+        assert_eq!(sent, [0x09, 0x0B, 0x0F]);
+        assert_eq!(valve.state().status_word(), 0x0F);
+    }
+
+    #[test]
+    fn a_fault_holds_the_spool_until_reset_by_a_rising_r() {
+        let mut valve = StateMachine::power_up();
+        for word in [0x08, 0x09, 0x0B, 0x0F] {
+            valve.on_control_word(word);
+        }
+        assert!(valve.on_fault(), "a new fault sends an EMCY");
+        assert!(!valve.on_fault(), "once");
+        assert_eq!(valve.state(), DeviceState::FaultHold);
+        assert!(!valve.state().follows_set_point());
+        // Keeping R high does not clear it.
+        assert_eq!(valve.on_control_word(0x0F), DeviceState::FaultHold);
+        // The master's recovery: R low, then high.
+        let mut last = 0x0F;
+        let mut steps = 0;
+        while valve.state() != DeviceState::Active && steps < 10 {
+            last = next_control_word(valve.state(), last);
+            valve.on_control_word(last);
+            steps += 1;
+        }
+        assert_eq!(valve.state(), DeviceState::Active);
+        assert_eq!(steps, 3, "0x03, 0x0B, 0x0F");
+    }
+
+    #[test]
+    fn every_status_word_reads_back_as_its_state() {
+        for state in [
+            DeviceState::Init,
+            DeviceState::Disabled,
+            DeviceState::Hold,
+            DeviceState::Active,
+            DeviceState::FaultDisabled,
+            DeviceState::FaultHold,
+            DeviceState::FaultReaction,
+        ] {
+            assert_eq!(DeviceState::from_status_word(state.status_word(), true), state);
+        }
+        assert_eq!(DeviceState::from_status_word(0, false), DeviceState::NotReady);
+        assert_eq!(DeviceState::from_status_word(0, true), DeviceState::FaultInit);
+        assert!(DeviceState::from_status_word(0b1010, true).is_fault());
+    }
+
+    #[test]
+    fn lowering_the_control_word_steps_down() {
+        let mut valve = StateMachine::power_up();
+        valve.on_control_word(0x0F);
+        assert_eq!(valve.state(), DeviceState::Active, "every transition between is taken");
+        assert_eq!(valve.on_control_word(0x0B), DeviceState::Hold);
+        assert_eq!(valve.on_control_word(0x09), DeviceState::Disabled);
+        assert_eq!(valve.on_control_word(0x08), DeviceState::Init);
+        assert_eq!(valve.on_control_word(0x0E), DeviceState::Init, "M and H without D");
+    }
+}
