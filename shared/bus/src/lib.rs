@@ -3,6 +3,7 @@
 //! (`Outlet`), receive (`Inlet`), wait on several inputs at once
 //! (`run_loop`), and to clean up what a run leaves behind.
 
+pub mod can;
 pub mod clock;
 mod command;
 pub mod devices;
@@ -15,7 +16,7 @@ mod wait;
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
 pub use outlet::{Inlet, Outlet, PublisherWatch, Reader};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
-pub use wait::{guarded, run_loop, run_single, Flow, LoopExit, Wake};
+pub use wait::{guarded, run_loop, run_single, run_until, Flow, Input, LoopExit, Wake};
 
 /// The directory of the running executable, where cargo puts its sibling
 /// binaries (the supervisor, the processes).

@@ -1,4 +1,4 @@
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
@@ -45,17 +45,64 @@ pub fn run_loop(
     inputs: &[&Listener<ipc::Service>],
     tick: Option<Duration>,
     bus: &crate::Bus,
+    on_wake: impl FnMut(Wake) -> Flow,
+) -> Result<LoopExit, BusError> {
+    let inputs: Vec<Input<'_>> = inputs.iter().map(|&listener| Input::Listener(listener)).collect();
+    let mut next_tick = tick.map(|period| Instant::now() + period);
+    let timer = move |now: Option<Instant>| match (now, tick) {
+        // A late tick is not made up for: the next is a period on.
+        (Some(now), Some(period)) => {
+            next_tick = next_tick.map(|at| (at + period).max(now));
+            next_tick
+        }
+        _ => next_tick,
+    };
+    wait_loop(&inputs, bus, timer, on_wake)
+}
+
+/// What a loop sleeps on: an iceoryx2 listener (its notifications are
+/// taken before the callback runs) or a socket (a CAN socket; the callback
+/// reads it until it would block).
+#[derive(Clone, Copy)]
+pub enum Input<'a> {
+    Listener(&'a Listener<ipc::Service>),
+    Socket(std::os::fd::BorrowedFd<'a>),
+}
+
+/// [`run_loop`] with a deadline instead of a period: `next_deadline` is
+/// asked before every wait, and the callback gets [`Wake::Tick`] once it
+/// has passed.
+pub fn run_until(
+    inputs: &[Input<'_>],
+    bus: &crate::Bus,
+    mut next_deadline: impl FnMut() -> Option<Instant>,
+    on_wake: impl FnMut(Wake) -> Flow,
+) -> Result<LoopExit, BusError> {
+    wait_loop(inputs, bus, move |_| next_deadline(), on_wake)
+}
+
+/// The one loop: `timer(None)` gives the next deadline; `timer(Some(now))`
+/// is called after a deadline fired and gives the next.
+fn wait_loop(
+    inputs: &[Input<'_>],
+    bus: &crate::Bus,
+    mut timer: impl FnMut(Option<Instant>) -> Option<Instant>,
     mut on_wake: impl FnMut(Wake) -> Flow,
 ) -> Result<LoopExit, BusError> {
     use nix::errno::Errno;
     use nix::poll::{ppoll, PollFd, PollFlags};
     use nix::sys::signal::{SigSet, SigmaskHow, Signal};
     use nix::sys::time::TimeSpec;
-    use std::time::Instant;
 
     let mut fds: Vec<PollFd> = inputs
         .iter()
-        .map(|listener| PollFd::new(listener_fd(listener), PollFlags::POLLIN))
+        .map(|input| {
+            let fd = match input {
+                Input::Listener(listener) => listener_fd(listener),
+                Input::Socket(fd) => *fd,
+            };
+            PollFd::new(fd, PollFlags::POLLIN)
+        })
         .collect();
     let mut terminating = SigSet::empty();
     terminating.add(Signal::SIGINT);
@@ -67,7 +114,7 @@ pub fn run_loop(
     let mut inside_wait = outside_wait;
     inside_wait.remove(Signal::SIGINT);
     inside_wait.remove(Signal::SIGTERM);
-    let mut next_tick = tick.map(|period| Instant::now() + period);
+    let mut deadline = timer(None);
     // A signal that came before the mask (during start-up) was taken by
     // iceoryx2's handler then, and will not interrupt the wait below.
     if bus.termination_requested() {
@@ -76,7 +123,7 @@ pub fn run_loop(
         return Ok(LoopExit::Signal);
     }
     let result = (|| loop {
-        let timeout = next_tick.map(|at| TimeSpec::from_duration(at.saturating_duration_since(Instant::now())));
+        let timeout = deadline.map(|at| TimeSpec::from_duration(at.saturating_duration_since(Instant::now())));
         match ppoll(&mut fds, timeout, Some(inside_wait)) {
             Ok(_) => {}
             Err(Errno::EINTR) => {
@@ -95,23 +142,27 @@ pub fn run_loop(
             if !events.contains(PollFlags::POLLIN) {
                 continue;
             }
-            let notified = inputs[i]
-                .try_wait(|_| {})
-                .map_err(|e| BusError::ipc("taking an input's notification", e))?;
+            let notified = match inputs[i] {
+                Input::Listener(listener) => listener
+                    .try_wait(|_| {})
+                    .map_err(|e| BusError::ipc("taking an input's notification", e))?,
+                Input::Socket(_) => 1,
+            };
             if notified > 0 && on_wake(Wake::Input(i)) == Flow::Stop {
                 return Ok(LoopExit::Stopped);
             }
         }
-        if let (Some(at), Some(period)) = (next_tick, tick) {
+        if let Some(at) = deadline {
             let now = Instant::now();
             if now >= at {
-                // A late tick is not made up for: the next is a period on.
-                next_tick = Some((at + period).max(now));
                 if on_wake(Wake::Tick) == Flow::Stop {
                     return Ok(LoopExit::Stopped);
                 }
+                deadline = timer(Some(now));
+                continue;
             }
         }
+        deadline = timer(None);
     })();
     nix::sys::signal::pthread_sigmask(SigmaskHow::SIG_SETMASK, Some(&outside_wait), None)
         .map_err(|e| BusError::ipc("restoring the signal mask", e))?;

@@ -1,0 +1,58 @@
+//! The virtual CAN bus's wire: takes the frames every station hands over
+//! on `hydractl/can/<interface>/tx`, lets the lowest ID win when the bus
+//! frees, holds each for its bits at the configured bitrate, and delivers
+//! it to every station on `hydractl/can/<interface>/rx` when its last bit
+//! has crossed. The config's `[can]` table names the bus and its bitrate.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use hydractl_bus::can::{frame_sample, sample_frame};
+use hydractl_bus::{clock, run_until, Inlet, Input, Outlet};
+use hydractl_can::wire::Wire;
+use hydractl_samples::{service, CanFrameSample};
+
+/// Frames the wire may be handed between two of its wake-ups.
+const TX_BUFFER: usize = 256;
+
+fn main() -> Result<()> {
+    let started = hydractl_processes::start("canbus")?;
+    let can = started.config.can.clone().unwrap_or_default();
+    let tx: Inlet<CanFrameSample> =
+        Inlet::open(&started.bus, &service::can_tx(&can.interface), TX_BUFFER).context("the bus's transmit side")?;
+    let rx: Outlet<CanFrameSample> =
+        Outlet::open(&started.bus, &service::can_rx(&can.interface)).context("the bus's receive side")?;
+    let mut wire = Wire::new(can.bitrate);
+    let mut delivered = 0u64;
+    let mut failure = None;
+    started.enter_realtime();
+    let inputs = [Input::Listener(tx.listener())];
+    let next_event = |wire: &Wire| {
+        wire.next_event_ns().map(|at| {
+            let now = clock::now_ns();
+            Instant::now() + Duration::from_nanos(at.saturating_sub(now))
+        })
+    };
+    let wire_cell = std::cell::RefCell::new(&mut wire);
+    run_until(
+        &inputs,
+        &started.bus,
+        || next_event(&wire_cell.borrow()),
+        |_| {
+            hydractl_bus::guarded(&mut failure, || -> Result<()> {
+                let mut wire = wire_cell.borrow_mut();
+                while let Some(sample) = tx.next()? {
+                    wire.submit(sample_frame(&sample), sample.station, sample.time_ns);
+                }
+                while let Some(delivery) = wire.poll(clock::now_ns()) {
+                    delivered += 1;
+                    let mut sample = frame_sample(&delivery.frame, delivered, delivery.end_ns, delivery.station);
+                    sample.submitted_ns = delivery.submitted_ns;
+                    rx.publish(sample)?;
+                }
+                Ok(())
+            })
+        },
+    )?;
+    failure.map_or(Ok(()), Err)
+}
