@@ -9,6 +9,8 @@
 //!   set point and spool position);
 //! - [`encoder`]: CiA 406, the angle encoder;
 //! - [`pressure`]: CiA 404, the pressure transducers;
+//! - [`ecu`]: the simulated ECUs (valve, encoder, transducers) and the
+//!   master's heartbeat consumer;
 //! - [`timing`]: how long a frame occupies the bus, stuffing included, and
 //!   whether a period's frames fit;
 //! - [`candump`]: can-utils' `candump -l` log lines;
@@ -18,6 +20,7 @@
 
 pub mod candump;
 pub mod canopen;
+pub mod ecu;
 pub mod encoder;
 mod frame;
 pub mod pressure;
