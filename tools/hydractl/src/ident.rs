@@ -111,6 +111,7 @@ fn tf(args: IdentTfArgs) -> Result<()> {
             "num": fit.tf.num(),
             "den": fit.tf.den(),
             "fit_percent": fit.fit_percent,
+            "warning": tf_fit_warning(fit.fit_percent),
             "estimation_fit_percent": fit.estimation_fit_percent,
             "resonances": pairs,
             "sample_time_s": ts,
@@ -120,7 +121,7 @@ fn tf(args: IdentTfArgs) -> Result<()> {
         return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
     }
     let fmt = |p: &[f64]| p.iter().map(|c| format!("{c:.6e}")).collect::<Vec<_>>().join(", ");
-    emit(&format!(
+    let mut text = format!(
         "{} → {}: num [{}], den [{}], fit {:.1}% on validation ({:.1}% on estimation)\n",
         args.input,
         args.output,
@@ -128,7 +129,20 @@ fn tf(args: IdentTfArgs) -> Result<()> {
         fmt(fit.tf.den()),
         fit.fit_percent,
         fit.estimation_fit_percent
-    ))
+    );
+    if let Some(warning) = tf_fit_warning(fit.fit_percent) {
+        text += &format!("warning: {warning}\n");
+    }
+    emit(&text)
+}
+
+/// A fit below zero predicts the output worse than its mean does.
+fn tf_fit_warning(fit_percent: f64) -> Option<String> {
+    (fit_percent < 0.0 || fit_percent.is_nan()).then(|| {
+        format!(
+            "a fit of {fit_percent:.0}% is worse than predicting the output's mean: this structure (--poles, --zeros, --delay) or this input does not explain this output"
+        )
+    })
 }
 
 #[derive(clap::Args)]
@@ -368,7 +382,7 @@ pub struct PidIaeArgs {
     /// The controller output's limit (the valve's range is 1).
     #[arg(long, default_value_t = 1.0)]
     output_limit: f64,
-    /// Print {"kp", "ki", "kd", "iae", "starts": [{"kp", "ki", "kd", "iae"}]}.
+    /// Print {"kp", "ki", "kd", "iae", "starts": [{"kp", "ki", "kd", "iae"}], "warnings": [...]}.
     #[arg(long)]
     json: bool,
 }
@@ -402,9 +416,12 @@ fn pid_iae(args: PidIaeArgs) -> Result<()> {
         .map(|g| Ok(serde_json::json!({"kp": g[0], "ki": g[1], "kd": g[2], "iae": iae(&model, *g, tuning)?})))
         .collect::<Result<Vec<_>>>()?;
     let tuned = tune_pid_iae(&model, &starts, tuning).context("minimizing the IAE")?;
+    let warnings = pid_warnings(&model, &starts, [tuned.kp, tuned.ki, tuned.kd]);
     if args.json {
-        let json =
-            serde_json::json!({"kp": tuned.kp, "ki": tuned.ki, "kd": tuned.kd, "iae": tuned.iae, "starts": at_starts});
+        let json = serde_json::json!({
+            "kp": tuned.kp, "ki": tuned.ki, "kd": tuned.kd, "iae": tuned.iae,
+            "starts": at_starts, "warnings": warnings,
+        });
         return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
     }
     let mut text = format!(
@@ -412,7 +429,47 @@ fn pid_iae(args: PidIaeArgs) -> Result<()> {
         tuned.kp, tuned.ki, tuned.kd, tuned.iae, args.horizon, args.step
     );
     for s in &at_starts {
-        text += &format!("  from {s}\n");
+        let gain = |key: &str| s[key].as_f64().unwrap_or(f64::NAN);
+        text += &format!(
+            "  from K_p = {:.4e}, K_i = {:.4e}, K_d = {:.4e}: IAE {:.5}\n",
+            gain("kp"),
+            gain("ki"),
+            gain("kd"),
+            gain("iae")
+        );
+    }
+    for warning in &warnings {
+        text += &format!("warning: {warning}\n");
     }
     emit(&text)
+}
+
+/// What a user must know before putting the tuned gains on a machine.
+fn pid_warnings(model: &TransferFunction, starts: &[[f64; 3]], tuned: [f64; 3]) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let unstable: Vec<String> = model
+        .poles()
+        .iter()
+        .filter(|p| p.re > 0.0)
+        .map(|p| format!("{:.3}{:+.3}i", p.re, p.im))
+        .collect();
+    if !unstable.is_empty() {
+        warnings.push(format!(
+            "the model is unstable (poles {}): the gains that minimize its IAE are those that hold it at the output limit, not gains to trust on a machine",
+            unstable.join(", ")
+        ));
+    }
+    // The search spans twelve decades around each start: a gain that ran
+    // that far says the IAE hardly depends on it.
+    for (i, name) in ["K_p", "K_i", "K_d"].iter().enumerate() {
+        let largest_start = starts.iter().map(|g| g[i].abs()).fold(0.0, f64::max);
+        if largest_start > 0.0 && tuned[i].abs() > 1e4 * largest_start {
+            warnings.push(format!(
+                "{name} = {:.1e} is {:.0e} times its largest start: the IAE hardly depends on it (the output limit or the derivative filter decides), so its value means little; give a start near what you expect",
+                tuned[i],
+                tuned[i].abs() / largest_start
+            ));
+        }
+    }
+    warnings
 }

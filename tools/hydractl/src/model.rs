@@ -228,9 +228,22 @@ fn diagnose(args: DiagnoseArgs) -> Result<()> {
 }
 
 pub fn diagnosis_table(diagnosis: &greybox::Diagnosis) -> String {
+    let per_output: Vec<String> = diagnosis
+        .baseline
+        .fit_percent
+        .iter()
+        .map(|(output, fit)| format!("{output} {:.4}", 1.0 - fit / 100.0))
+        .collect();
     let mut text = format!(
-        "baseline: validation NRMSE {:.4}\n\n{:<18} {:<10} {:>8} {:>8} {:>6}  {}\n",
-        diagnosis.baseline.validation_nrmse, "effect", "output", "before", "after", "sig.", "evidence"
+        "baseline: validation NRMSE {:.4}, the RMS of the outputs' ({})\n\n{:<18} {:<10} {:>8} {:>8} {:>6}  {}\n",
+        diagnosis.baseline.validation_nrmse,
+        per_output.join(", "),
+        "effect",
+        "output",
+        "before",
+        "after",
+        "sig.",
+        "evidence"
     );
     for c in &diagnosis.candidates {
         text += &format!(

@@ -569,3 +569,21 @@ fn can_budget_says_whether_a_period_fits_the_bus() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("does not fit"));
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn pid_iae_says_when_its_gains_mean_little() {
+    let out = hydractl()
+        .args(["ident", "pid-iae", "--num", "1", "--den", "1,-2"])
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("warning: the model is unstable (poles 2.000"), "{text}");
+    assert!(!text.contains('{'), "no raw JSON in the text: {text}");
+    let out = hydractl()
+        .args(["ident", "pid-iae", "--num", "1", "--den", "1,-2", "--json"])
+        .output()
+        .expect("runs");
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert!(!json["warnings"].as_array().expect("warnings").is_empty());
+}

@@ -203,6 +203,11 @@ fn evidence(
     };
     if significant {
         format!("{what}{change}")
+    } else if after > before {
+        format!(
+            "not significant: fitted, it makes the {} validation NRMSE worse, {before:.4} → {after:.4}",
+            Part::of(kind).output()
+        )
     } else {
         format!(
             "not significant: fitted, it changes the {} validation NRMSE only {before:.4} → {after:.4}",
