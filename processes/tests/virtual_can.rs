@@ -23,7 +23,7 @@ impl Drop for Wire {
     }
 }
 
-fn receive_n(port: &mut VirtualCanPort, n: usize, within: Duration) -> Vec<Received> {
+fn receive_n(port: &VirtualCanPort, n: usize, within: Duration) -> Vec<Received> {
     let deadline = Instant::now() + within;
     let mut got = Vec::new();
     while got.len() < n && Instant::now() < deadline {
@@ -54,8 +54,8 @@ fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
     )
     .expect("config");
     let bus = Bus::open(&scope, "stations").expect("node");
-    let mut sender = VirtualCanPort::open(&bus, "vtest0", &[]).expect("sender");
-    let mut receiver = VirtualCanPort::open(
+    let sender = VirtualCanPort::open(&bus, "vtest0", &[]).expect("sender");
+    let receiver = VirtualCanPort::open(
         &bus,
         "vtest0",
         &[Filter::exact(0x100), Filter::exact(0x300), Filter::exact(0x700)],
@@ -75,7 +75,7 @@ fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         sender.send(&probe).expect("send");
-        if !receive_n(&mut receiver, 1, Duration::from_millis(100)).is_empty() {
+        if !receive_n(&receiver, 1, Duration::from_millis(100)).is_empty() {
             break;
         }
         assert!(Instant::now() < deadline, "the wire never delivered");
@@ -92,7 +92,7 @@ fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
     sender.send(&high).expect("send");
     sender.send(&filtered_out).expect("send");
     sender.send(&low).expect("send");
-    let got = receive_n(&mut receiver, 3, Duration::from_secs(5));
+    let got = receive_n(&receiver, 3, Duration::from_secs(5));
     let ids: Vec<u32> = got.iter().map(|r| r.frame.id).collect();
     assert_eq!(
         ids,
@@ -114,7 +114,7 @@ fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
     );
     assert!(receiver.receive().expect("receive").is_none(), "each frame once");
     assert!(
-        receive_n(&mut sender, 1, Duration::from_millis(100)).is_empty(),
+        receive_n(&sender, 1, Duration::from_millis(100)).is_empty(),
         "a station does not hear itself"
     );
     drop((sender, receiver, bus));

@@ -5,6 +5,7 @@
 //! other input ([`CanPort::input`]), see only the frames their filters
 //! pass, and count error frames. Sending and receiving allocate nothing.
 
+use std::cell::Cell;
 use std::os::fd::AsFd;
 
 use hydractl_can::Frame;
@@ -68,10 +69,11 @@ impl Filter {
 pub trait CanPort {
     fn interface(&self) -> &str;
     /// Hands a frame to the controller; never blocks.
-    fn send(&mut self, frame: &Frame) -> Result<(), CanPortError>;
+    fn send(&self, frame: &Frame) -> Result<(), CanPortError>;
     /// The next frame that passed the filters, error frames included;
-    /// `None` when none waits. Never blocks.
-    fn receive(&mut self) -> Result<Option<Received>, CanPortError>;
+    /// `None` when none waits. Never blocks. (`&self`, so that a loop can
+    /// sleep on [`CanPort::input`] and read in its callback.)
+    fn receive(&self) -> Result<Option<Received>, CanPortError>;
     /// What to sleep on for frames.
     fn input(&self) -> Input<'_>;
     /// Error frames received so far.
@@ -121,8 +123,8 @@ pub struct VirtualCanPort {
     rx: Inlet<CanFrameSample>,
     station: u32,
     filters: Filters,
-    sent: u64,
-    error_frames: u64,
+    sent: Cell<u64>,
+    error_frames: Cell<u64>,
 }
 
 impl VirtualCanPort {
@@ -137,8 +139,8 @@ impl VirtualCanPort {
             tx: Outlet::open(bus, &service::can_tx(interface)).map_err(virtual_error)?,
             station: std::process::id(),
             filters: Filters::new(interface, filters)?,
-            sent: 0,
-            error_frames: 0,
+            sent: Cell::new(0),
+            error_frames: Cell::new(0),
         })
     }
 
@@ -185,17 +187,17 @@ impl CanPort for VirtualCanPort {
         &self.interface
     }
 
-    fn send(&mut self, frame: &Frame) -> Result<(), CanPortError> {
-        self.sent += 1;
+    fn send(&self, frame: &Frame) -> Result<(), CanPortError> {
+        self.sent.set(self.sent.get() + 1);
         self.tx
-            .publish(frame_sample(frame, self.sent, clock::now_ns(), self.station))
+            .publish(frame_sample(frame, self.sent.get(), clock::now_ns(), self.station))
             .map_err(|source| CanPortError::Virtual {
                 interface: self.interface.clone(),
                 source,
             })
     }
 
-    fn receive(&mut self) -> Result<Option<Received>, CanPortError> {
+    fn receive(&self) -> Result<Option<Received>, CanPortError> {
         loop {
             let Some(sample) = self.rx.next().map_err(|source| CanPortError::Virtual {
                 interface: self.interface.clone(),
@@ -206,7 +208,7 @@ impl CanPort for VirtualCanPort {
             };
             let frame = sample_frame(&sample);
             if frame.is_error() {
-                self.error_frames += 1;
+                self.error_frames.set(self.error_frames.get() + 1);
             } else if sample.station == self.station || !self.filters.accepts(&frame) {
                 continue;
             }
@@ -222,7 +224,7 @@ impl CanPort for VirtualCanPort {
     }
 
     fn error_frames(&self) -> u64 {
-        self.error_frames
+        self.error_frames.get()
     }
 }
 
@@ -231,7 +233,7 @@ impl CanPort for VirtualCanPort {
 pub struct SocketCanPort {
     interface: String,
     socket: socketcan::CanSocket,
-    error_frames: u64,
+    error_frames: Cell<u64>,
 }
 
 impl SocketCanPort {
@@ -274,7 +276,7 @@ impl SocketCanPort {
         Ok(Self {
             interface: interface.to_string(),
             socket,
-            error_frames: 0,
+            error_frames: Cell::new(0),
         })
     }
 }
@@ -332,7 +334,7 @@ impl CanPort for SocketCanPort {
         &self.interface
     }
 
-    fn send(&mut self, frame: &Frame) -> Result<(), CanPortError> {
+    fn send(&self, frame: &Frame) -> Result<(), CanPortError> {
         use socketcan::Socket;
         let mut raw = socketcan::frame::can_frame_default();
         raw.can_id = frame.id
@@ -349,7 +351,7 @@ impl CanPort for SocketCanPort {
             })
     }
 
-    fn receive(&mut self) -> Result<Option<Received>, CanPortError> {
+    fn receive(&self) -> Result<Option<Received>, CanPortError> {
         let raw = match self.socket.read_raw_frame() {
             Ok(raw) => raw,
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
@@ -371,7 +373,7 @@ impl CanPort for SocketCanPort {
         }
         if raw.can_id & CAN_ERR_FLAG != 0 {
             flags |= Frame::ERROR;
-            self.error_frames += 1;
+            self.error_frames.set(self.error_frames.get() + 1);
         }
         let frame = Frame {
             id: raw.can_id & Frame::MAX_EXTENDED_ID,
@@ -388,7 +390,7 @@ impl CanPort for SocketCanPort {
     }
 
     fn error_frames(&self) -> u64 {
-        self.error_frames
+        self.error_frames.get()
     }
 }
 
