@@ -1,6 +1,7 @@
 //! The offline closed loop behind `hydractl sim`: the simulated rotator
 //! driven by the control stack in one process, its rows and metrics.
 
+pub mod foreign;
 pub mod metrics;
 pub mod simulator;
 

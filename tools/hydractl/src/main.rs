@@ -156,6 +156,28 @@ enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         repeat: usize,
     },
+    /// `model diagnose` on plants simulated apart from the model (parameters
+    /// ±40 % from the prior, other noise, a transducer lag, supply ripple,
+    /// quadratic friction, their own controller), with one hidden effect
+    /// or none: how often the hidden effect is named, and false alarms.
+    Foreign {
+        /// Plants per case.
+        #[arg(long, default_value_t = 20)]
+        plants: usize,
+        /// Seconds of 1 kHz data per plant.
+        #[arg(long, default_value_t = 60.0)]
+        duration: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Cases to run: `none` and effect names [default: all].
+        #[arg(long, value_delimiter = ',')]
+        effects: Vec<String>,
+        /// Print JSON: {"duration_s", "seed", "cases": [{"hidden", "truth", "plants", "named_first",
+        /// "within_25_percent", "any_significant", "runs": [{"seed", "plant", "first", "first_significant",
+        /// "significant", "fitted", "seconds"}]}]}.
+        #[arg(long)]
+        json: bool,
+    },
     /// Sensor-to-valve latency of the five stages over iceoryx2 between
     /// processes, over UDP loopback between processes, and as function calls.
     Latency(bench_latency::LatencyArgs),
@@ -195,6 +217,13 @@ fn main() -> Result<()> {
         Command::Can(command) => can::run(command),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
         Command::Bench(BenchCommand::Diagnose { durations, repeat }) => model::bench_diagnose(&durations, repeat),
+        Command::Bench(BenchCommand::Foreign {
+            plants,
+            duration,
+            seed,
+            effects,
+            json,
+        }) => model::bench_foreign(plants, duration, seed, &effects, json),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
         Command::Bench(BenchCommand::Record(args)) => bench_record::bench(args),
         Command::Bench(BenchCommand::Stalls(args)) => bench_stalls::bench(args),

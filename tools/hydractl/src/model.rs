@@ -348,3 +348,174 @@ pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
     }
     emit(&text)
 }
+
+/// One foreign plant diagnosed.
+#[derive(serde::Serialize)]
+struct ForeignRun {
+    seed: u64,
+    plant: String,
+    first: String,
+    first_significant: bool,
+    significant: Vec<String>,
+    /// The hidden effect's main parameter as fitted, when it was tried.
+    fitted: Option<f64>,
+    seconds: f64,
+}
+
+#[derive(serde::Serialize)]
+struct ForeignCase {
+    hidden: String,
+    /// The hidden effect's main parameter: key and true value.
+    truth: Option<(String, f64)>,
+    plants: usize,
+    /// Hidden effect ranked first and called significant.
+    named_first: usize,
+    /// …with its main parameter within 25 % of the truth.
+    within_25_percent: usize,
+    /// Any effect called significant (with none hidden: false alarms).
+    any_significant: usize,
+    runs: Vec<ForeignRun>,
+}
+
+/// `bench foreign`: diagnose on plants simulated apart from the model.
+pub fn bench_foreign(plants: usize, duration: f64, seed: u64, only: &[String], json: bool) -> Result<()> {
+    use hydractl_sim::foreign::{foreign_plant, Hidden};
+    let mut cases: Vec<Option<Hidden>> = vec![None];
+    cases.extend(Hidden::all().into_iter().map(Some));
+    let name = |h: &Option<Hidden>| h.map_or("none", |h| h.name()).to_owned();
+    if !only.is_empty() {
+        let known: Vec<String> = cases.iter().map(name).collect();
+        if let Some(unknown) = only.iter().find(|o| !known.contains(o)) {
+            bail!("--effects: `{unknown}` is none of {}", known.join(", "));
+        }
+        cases.retain(|c| only.contains(&name(c)));
+    }
+    let diagnose_one = |case: usize, hidden: Option<Hidden>, i: usize| -> Result<ForeignRun> {
+        let plant_seed = seed.wrapping_mul(1_000_003).wrapping_add((case * 1000 + i) as u64);
+        let data = foreign_plant(plant_seed, hidden, duration);
+        let dataset = Dataset::from_columns(
+            "foreign",
+            vec![
+                ("t", data.t),
+                ("u", data.u),
+                ("p_a", data.p_a_bar),
+                ("p_b", data.p_b_bar),
+                ("theta", data.theta),
+            ],
+        );
+        let signals = Signals::from_dataset(&dataset)?;
+        let start = std::time::Instant::now();
+        let diagnosis = greybox::diagnose(&signals, None, FitOptions::default())?;
+        let seconds = start.elapsed().as_secs_f64();
+        let first = diagnosis.candidates.first();
+        let fitted = hidden.and_then(|h| {
+            let (key, _) = h.main();
+            diagnosis
+                .candidates
+                .iter()
+                .find(|c| c.effect == h.name())
+                .and_then(|c| c.params.get(key).copied())
+        });
+        Ok(ForeignRun {
+            seed: plant_seed,
+            plant: data.description,
+            first: first.map(|c| c.effect.clone()).unwrap_or_default(),
+            first_significant: first.is_some_and(|c| c.significant),
+            significant: diagnosis
+                .candidates
+                .iter()
+                .filter(|c| c.significant)
+                .map(|c| c.effect.clone())
+                .collect(),
+            fitted,
+            seconds,
+        })
+    };
+    // Plants are independent: both cores, one diagnosis each.
+    let jobs: Vec<(usize, Option<Hidden>, usize)> = cases
+        .iter()
+        .enumerate()
+        .flat_map(|(c, h)| (0..plants).map(move |i| (c, *h, i)))
+        .collect();
+    let workers = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(jobs.len().max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results: Vec<(usize, Result<ForeignRun>)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..workers)
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut done = Vec::new();
+                    loop {
+                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(&(case, hidden, i)) = jobs.get(j) else { break };
+                        done.push((j, diagnose_one(case, hidden, i)));
+                    }
+                    done
+                })
+            })
+            .collect();
+        let mut all: Vec<_> = handles.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect();
+        all.sort_by_key(|(j, _)| *j);
+        all
+    });
+    let mut summary: Vec<ForeignCase> = cases
+        .iter()
+        .map(|h| ForeignCase {
+            hidden: name(h),
+            truth: h.map(|h| (h.main().0.to_owned(), h.main().1)),
+            plants: 0,
+            named_first: 0,
+            within_25_percent: 0,
+            any_significant: 0,
+            runs: Vec::new(),
+        })
+        .collect();
+    for (j, run) in results {
+        let (case, hidden, _) = jobs[j];
+        let run = run.with_context(|| format!("diagnosing foreign plant {j}"))?;
+        let entry = &mut summary[case];
+        entry.plants += 1;
+        if let Some(h) = hidden {
+            if run.first == h.name() && run.first_significant {
+                entry.named_first += 1;
+                let (_, truth) = h.main();
+                if run.fitted.is_some_and(|f| (f - truth).abs() <= 0.25 * truth.abs()) {
+                    entry.within_25_percent += 1;
+                }
+            }
+        }
+        if !run.significant.is_empty() {
+            entry.any_significant += 1;
+        }
+        entry.runs.push(run);
+    }
+    if json {
+        return emit(
+            &(serde_json::to_string_pretty(
+                &serde_json::json!({"duration_s": duration, "seed": seed, "cases": summary}),
+            )? + "\n"),
+        );
+    }
+    let mut text = format!(
+        "bench foreign: model diagnose on plants simulated apart from the model ({plants} per case, {duration} s of 1 kHz data each, seed {seed})\n\
+         {:<18} {:>6} {:>12} {:>12} {:>13} {:>10}\n",
+        "hidden", "plants", "named first", "param ±25%", "any signif.", "median s"
+    );
+    for case in &summary {
+        let mut times: Vec<f64> = case.runs.iter().map(|r| r.seconds).collect();
+        times.sort_by(f64::total_cmp);
+        let median = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
+        let (named, within) = if case.truth.is_some() {
+            (case.named_first.to_string(), case.within_25_percent.to_string())
+        } else {
+            ("-".to_owned(), "-".to_owned())
+        };
+        text += &format!(
+            "{:<18} {:>6} {:>12} {:>12} {:>13} {:>10.2}\n",
+            case.hidden, case.plants, named, within, case.any_significant, median
+        );
+    }
+    text += "named first: the hidden effect ranked first and called significant; any signif.: plants on which any effect was called significant (with none hidden, each is a false alarm)\n";
+    emit(&text)
+}
