@@ -406,7 +406,6 @@ mod tests {
             .err()
             .expect("no such interface here");
         let text = error.to_string();
-        eprintln!("{text}");
         assert!(text.starts_with("CAN interface `nocan9` cannot be opened: "), "{text}");
         assert!(
             text.contains("no SocketCAN") || text.contains("there is no interface `nocan9`"),
