@@ -172,7 +172,7 @@ impl ValveEcu {
         if self.core.on_nmt(frame).is_some() {
             if !self.core.operational() {
                 // Leaving operational stops the PDOs: the valve holds.
-                self.enter_fault_if_active(now_ns, out);
+                self.fault_if_active(out);
             }
             return;
         }
@@ -226,20 +226,17 @@ impl ValveEcu {
     /// The valve's own clock: heartbeat, and the RPDO timeout in Active.
     pub fn tick(&mut self, now_ns: u64, out: &mut Outbox) {
         self.core.tick(now_ns, out);
-        if self.dsm.state() == DeviceState::Active {
-            let silent = self
-                .last_set_point_ns
-                .is_none_or(|t| now_ns.saturating_sub(t) > self.rpdo_timeout_ns);
-            if silent {
-                self.dsm.on_fault();
-                self.set_point = 0;
-                out.push(Emergency::new(emcy_code::VALVE_RPDO_TIMEOUT, 0x11).to_frame(self.core.node));
-                self.emcys += 1;
-            }
+        let silent = self
+            .last_set_point_ns
+            .is_none_or(|t| now_ns.saturating_sub(t) > self.rpdo_timeout_ns);
+        if silent {
+            self.fault_if_active(out);
         }
     }
 
-    fn enter_fault_if_active(&mut self, _now_ns: u64, out: &mut Outbox) {
+    /// The set point stopped (timeout, or the node left operational): to
+    /// fault hold, spool neutral, one EMCY.
+    fn fault_if_active(&mut self, out: &mut Outbox) {
         if self.dsm.state() == DeviceState::Active && self.dsm.on_fault() {
             self.set_point = 0;
             out.push(Emergency::new(emcy_code::VALVE_RPDO_TIMEOUT, 0x11).to_frame(self.core.node));
