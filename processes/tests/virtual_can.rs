@@ -113,6 +113,12 @@ fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
         "0x200 held the bus between them although filtered: {span} ns"
     );
     assert!(receiver.receive().expect("receive").is_none(), "each frame once");
+    let late = VirtualCanPort::open(&bus, "vtest0", &[]).expect("late").with_station(9);
+    assert!(
+        receive_n(&late, 1, Duration::from_millis(100)).is_empty(),
+        "a station that joins late does not get the last frame again"
+    );
+    drop(late);
     assert!(
         receive_n(&sender, 1, Duration::from_millis(100)).is_empty(),
         "a station does not hear itself"

@@ -23,6 +23,9 @@ fn main() -> Result<()> {
     let rx: Outlet<CanFrameSample> =
         Outlet::open(&started.bus, &service::can_rx(&can.interface)).context("the bus's receive side")?;
     let mut wire = Wire::new(can.bitrate);
+    // The service keeps each station's last frame for late joiners: one
+    // from before this wire started was sent to a wire that is gone.
+    let started_ns = clock::now_ns();
     let mut delivered = 0u64;
     let mut failure = None;
     started.enter_realtime();
@@ -42,7 +45,9 @@ fn main() -> Result<()> {
             hydractl_bus::guarded(&mut failure, || -> Result<()> {
                 let mut wire = wire_cell.borrow_mut();
                 while let Some(sample) = tx.next()? {
-                    wire.submit(sample_frame(&sample), sample.station, sample.time_ns);
+                    if sample.time_ns >= started_ns {
+                        wire.submit(sample_frame(&sample), sample.station, sample.time_ns);
+                    }
                 }
                 while let Some(delivery) = wire.poll(clock::now_ns()) {
                     delivered += 1;

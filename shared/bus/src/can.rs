@@ -125,6 +125,9 @@ pub struct VirtualCanPort {
     filters: Filters,
     sent: Cell<u64>,
     error_frames: Cell<u64>,
+    /// The service keeps its last frame for late joiners; a frame from
+    /// before this port opened is old news, not traffic.
+    opened_ns: u64,
 }
 
 impl VirtualCanPort {
@@ -141,6 +144,7 @@ impl VirtualCanPort {
             filters: Filters::new(interface, filters)?,
             sent: Cell::new(0),
             error_frames: Cell::new(0),
+            opened_ns: clock::now_ns(),
         })
     }
 
@@ -206,6 +210,9 @@ impl CanPort for VirtualCanPort {
             else {
                 return Ok(None);
             };
+            if sample.time_ns < self.opened_ns {
+                continue;
+            }
             let frame = sample_frame(&sample);
             if frame.is_error() {
                 self.error_frames.set(self.error_frames.get() + 1);
@@ -336,6 +343,16 @@ impl CanPort for SocketCanPort {
 
     fn send(&self, frame: &Frame) -> Result<(), CanPortError> {
         use socketcan::Socket;
+        if frame.is_error() {
+            return Err(CanPortError::Io {
+                interface: self.interface.clone(),
+                what: "sending a frame",
+                source: std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    "error frames are made by the controllers, not sent",
+                ),
+            });
+        }
         let mut raw = socketcan::frame::can_frame_default();
         raw.can_id = frame.id
             | if frame.is_extended() { CAN_EFF_FLAG } else { 0 }

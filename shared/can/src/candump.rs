@@ -112,22 +112,25 @@ fn parse_frame(text: &str) -> Result<Frame, String> {
         return Err("CAN FD frames (ID##…) are not supported".to_string());
     }
     let id = u32::from_str_radix(id_text, 16).map_err(|_| format!("`{id_text}` is not a hex CAN ID"))?;
+    let remote_len = match data_text.strip_prefix('R') {
+        Some("") => Some(0u8),
+        Some(len) => Some(
+            len.parse::<u8>()
+                .ok()
+                .filter(|n| *n <= 8)
+                .ok_or_else(|| format!("`R{len}` is not a remote request length"))?,
+        ),
+        None => None,
+    };
     let frame = match id_text.len() {
         3 => {
             if id > Frame::MAX_STANDARD_ID {
                 return Err(format!("standard ID {id:#x} is above 0x7FF"));
             }
             let id = id as u16;
-            if let Some(len) = data_text.strip_prefix('R') {
-                let len = if len.is_empty() {
-                    0
-                } else {
-                    len.parse()
-                        .map_err(|_| format!("`R{len}` is not a remote request length"))?
-                };
-                Frame::remote(id, len).map_err(|e| e.to_string())?
-            } else {
-                Frame::new(id, &hex_bytes(data_text)?).map_err(|e| e.to_string())?
+            match remote_len {
+                Some(len) => Frame::remote(id, len).map_err(|e| e.to_string())?,
+                None => Frame::new(id, &hex_bytes(data_text)?).map_err(|e| e.to_string())?,
             }
         }
         8 if id & CAN_ERR_FLAG != 0 => {
@@ -137,7 +140,15 @@ fn parse_frame(text: &str) -> Result<Frame, String> {
             data[..n].copy_from_slice(&bytes[..n]);
             Frame::error(id & !CAN_ERR_FLAG, data)
         }
-        8 => Frame::extended(id, &hex_bytes(data_text)?).map_err(|e| e.to_string())?,
+        8 => match remote_len {
+            Some(len) => {
+                let mut frame = Frame::extended(id, &[]).map_err(|e| e.to_string())?;
+                frame.flags |= Frame::REMOTE;
+                frame.len = len;
+                frame
+            }
+            None => Frame::extended(id, &hex_bytes(data_text)?).map_err(|e| e.to_string())?,
+        },
         n => return Err(format!("a CAN ID has 3 or 8 hex digits, `{id_text}` has {n}")),
     };
     Ok(frame)
@@ -146,6 +157,9 @@ fn parse_frame(text: &str) -> Result<Frame, String> {
 fn hex_bytes(text: &str) -> Result<Vec<u8>, String> {
     // can-utils accepts `.` between bytes.
     let digits: String = text.chars().filter(|&c| c != '.').collect();
+    if !digits.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return Err(format!("`{text}` is not hex data"));
+    }
     if !digits.len().is_multiple_of(2) {
         return Err(format!("`{text}`: an odd number of hex digits"));
     }
@@ -185,6 +199,8 @@ mod tests {
             "(0.000001) vcan0 123#R",
             "(0.000001) vcan0 123#R4",
             "(0.000001) vcan0 12345678#DEADBEEF",
+            "(0.000001) vcan0 12345678#R",
+            "(0.000001) vcan0 12345678#R2",
             "(0.000001) vcan0 080#",
             "(0.000001) vcan0 20000004#0004000000000000",
         ] {
@@ -228,6 +244,8 @@ mod tests {
             "(1.000001) can0 181#000102030405060708",
             "(1.000001) can0 181##100",
             "(1.000001) can0 181#ZZ",
+            "(1.000001) can0 181#a€",
+            "(1.000001) can0 181#R9",
         ] {
             let error = parse_line(9, bad).expect_err(bad);
             assert_eq!(error.line, 9, "{bad}");

@@ -184,17 +184,18 @@ pub fn decode_heartbeat(frame: &Frame) -> Result<(NodeId, NmtState), CanError> {
     Ok((node, state))
 }
 
-/// SYNC, with the optional counter (1 to 240) of CiA 301's
-/// synchronous counter overflow value.
-pub fn sync(counter: Option<u8>) -> Frame {
+/// SYNC on `cob_id` (0x080 unless configured), with the optional counter
+/// (1 to 240) of CiA 301's synchronous counter overflow value.
+pub fn sync(cob_id: u16, counter: Option<u8>) -> Frame {
     match counter {
-        Some(c) => frame(cob_id::SYNC, &[c]),
-        None => frame(cob_id::SYNC, &[]),
+        Some(c) => frame(cob_id, &[c]),
+        None => frame(cob_id, &[]),
     }
 }
 
-pub fn is_sync(frame: &Frame) -> bool {
-    frame.id == u32::from(cob_id::SYNC) && !frame.is_extended() && !frame.is_error() && frame.len <= 1
+/// Whether `frame` is the SYNC on `cob_id`: a data frame of at most one byte.
+pub fn is_sync(frame: &Frame, cob_id: u16) -> bool {
+    frame.id == u32::from(cob_id) && !frame.is_extended() && !frame.is_error() && !frame.is_remote() && frame.len <= 1
 }
 
 /// An emergency message (COB-ID 0x080 + node).
@@ -658,8 +659,11 @@ mod tests {
         assert_eq!(text(&nmt(NmtCommand::EnterPreOperational, 5)), "000#8005");
         assert_eq!(text(&nmt(NmtCommand::ResetCommunication, 0)), "000#8200");
         assert_eq!(decode_nmt(&nmt(NmtCommand::Stop, 7)), Ok((NmtCommand::Stop, 7)));
-        assert_eq!(text(&sync(None)), "080#");
-        assert_eq!(text(&sync(Some(3))), "080#03");
+        assert_eq!(text(&sync(cob_id::SYNC, None)), "080#");
+        assert_eq!(text(&sync(cob_id::SYNC, Some(3))), "080#03");
+        assert!(is_sync(&sync(0x081, None), 0x081));
+        assert!(!is_sync(&sync(0x081, None), cob_id::SYNC));
+        assert!(!is_sync(&Frame::remote(0x080, 0).expect("frame"), cob_id::SYNC));
         assert_eq!(text(&heartbeat(0x20, NmtState::Operational)), "720#05");
         assert_eq!(text(&heartbeat(0x20, NmtState::PreOperational)), "720#7F");
         assert_eq!(text(&heartbeat(1, NmtState::BootUp)), "701#00");

@@ -166,7 +166,9 @@ impl ValveEcu {
     }
 
     pub fn on_frame(&mut self, frame: &Frame, now_ns: u64, out: &mut Outbox) {
-        if frame.is_error() || frame.is_extended() {
+        // A remote request carries no data: taken as a set point it would
+        // hide a dead master from the RPDO timeout.
+        if frame.is_error() || frame.is_extended() || frame.is_remote() {
             return;
         }
         if self.core.on_nmt(frame).is_some() {
@@ -177,7 +179,7 @@ impl ValveEcu {
             return;
         }
         let id = frame.id as u16;
-        if id == self.sync_cob_id && canopen::is_sync(frame) {
+        if canopen::is_sync(frame, self.sync_cob_id) {
             if self.core.operational() {
                 if let Ok(f) = self.status_frame() {
                     out.push(f);
@@ -207,18 +209,13 @@ impl ValveEcu {
                     let mode = values[self.slot(&self.profile_control, (offset, 8))] as u8;
                     self.device_mode_bus = mode == valve_object::DEVICE_MODE_BUS;
                 }
-                let before = self.dsm.state();
-                let after = self.dsm.on_control_word(word);
-                if after == DeviceState::Active && before != DeviceState::Active {
-                    // The set point's timer starts with Active.
-                    self.last_set_point_ns = Some(now_ns);
-                }
+                self.on_control_word(word, now_ns);
             }
             return;
         }
         if id == cob_id::sdo_request(self.core.node) {
             if let Ok((_, request)) = SdoRequest::decode(frame) {
-                out.push(self.answer_sdo(request).to_frame(self.core.node));
+                out.push(self.answer_sdo(request, now_ns).to_frame(self.core.node));
             }
         }
     }
@@ -244,6 +241,14 @@ impl ValveEcu {
         }
     }
 
+    /// A control word by PDO or SDO; the set point's timer starts with Active.
+    fn on_control_word(&mut self, word: u16, now_ns: u64) {
+        let before = self.dsm.state();
+        if self.dsm.on_control_word(word) == DeviceState::Active && before != DeviceState::Active {
+            self.last_set_point_ns = Some(now_ns);
+        }
+    }
+
     /// Which unpacked value sits at a byte offset.
     fn slot(&self, pdo: &crate::profile::Pdo, at: (usize, u8)) -> usize {
         let mut offset = 0;
@@ -266,7 +271,7 @@ impl ValveEcu {
             .pack(self.profile_status.cob_id, &values[..n])
     }
 
-    fn answer_sdo(&mut self, request: SdoRequest) -> SdoResponse {
+    fn answer_sdo(&mut self, request: SdoRequest, now_ns: u64) -> SdoResponse {
         match request {
             SdoRequest::Upload { index, sub } => {
                 let value: Option<u32> = match (index, sub) {
@@ -292,7 +297,7 @@ impl ValveEcu {
             }
             SdoRequest::Download { index, sub, value, .. } => match (index, sub) {
                 (valve_object::CONTROL_WORD, 0) => {
-                    self.dsm.on_control_word(u16::from_le_bytes([value[0], value[1]]));
+                    self.on_control_word(u16::from_le_bytes([value[0], value[1]]), now_ns);
                     SdoResponse::Downloaded { index, sub }
                 }
                 (valve_object::DEVICE_MODE, 0) => {
@@ -353,13 +358,13 @@ impl SensorEcu {
     }
 
     pub fn on_frame(&mut self, frame: &Frame, out: &mut Outbox) {
-        if frame.is_error() || frame.is_extended() {
+        if frame.is_error() || frame.is_extended() || frame.is_remote() {
             return;
         }
         if self.core.on_nmt(frame).is_some() {
             return;
         }
-        if frame.id == u32::from(self.sync_cob_id) && canopen::is_sync(frame) && self.core.operational() {
+        if canopen::is_sync(frame, self.sync_cob_id) && self.core.operational() {
             let n = self.pdo.mapping.entries().len();
             let mut values = [0u64; 8];
             values[0] = self.raw;
@@ -517,7 +522,7 @@ mod tests {
             canopen::heartbeat(0x10, NmtState::BootUp),
             "boot-up first"
         );
-        let sync = canopen::sync(None);
+        let sync = canopen::sync(cob_id::SYNC, None);
         bench.step(&[nmt(NmtCommand::Start, 0), sync]);
         assert_eq!(bench.valve.nmt_state(), NmtState::Operational);
         assert_eq!(bench.status(), Some(DeviceState::Init));
@@ -545,7 +550,7 @@ mod tests {
     #[test]
     fn a_silent_master_faults_the_valve_to_hold_with_an_emcy_and_a_reset_recovers_it() {
         let mut bench = Bench::new();
-        let sync = canopen::sync(None);
+        let sync = canopen::sync(cob_id::SYNC, None);
         bench.step(&[nmt(NmtCommand::Start, 0x10)]);
         for word in [0x09, 0x0B, 0x0F] {
             let frames = [control(&bench.profile, word), set_point(&bench.profile, 0.3), sync];
@@ -582,16 +587,22 @@ mod tests {
             bench.step(&[control(&bench.profile, word), set_point(&bench.profile, 0.4)]);
         }
         let garbled = Frame::new(bench.profile.valve_set_point.cob_id, &[0, 0, 0xFF]).expect("frame");
-        bench.step(&[garbled]);
+        let remote = Frame::remote(bench.profile.valve_set_point.cob_id, 4).expect("frame");
+        bench.step(&[garbled, remote]);
         assert!(
             (bench.valve.spool_command() - 0.4).abs() < 1e-4,
-            "the garbled one is not taken"
+            "neither the garbled one nor a remote request is taken"
         );
         assert!(bench
             .heard
             .iter()
             .filter_map(|f| Emergency::decode(f).ok())
             .any(|(_, e)| e.code == emcy_code::PDO_LENGTH));
+        // Nor does a remote request keep a dead master's valve alive.
+        for _ in 0..25 {
+            bench.step(&[remote]);
+        }
+        assert_eq!(bench.valve.state(), DeviceState::FaultHold);
     }
 
     #[test]
@@ -600,10 +611,10 @@ mod tests {
         let mut encoder = SensorEcu::encoder(&profile);
         let mut out = Outbox::default();
         encoder.measure(u64::from(profile.encoder_scale.position(1.0)));
-        encoder.on_frame(&canopen::sync(None), &mut out);
+        encoder.on_frame(&canopen::sync(cob_id::SYNC, None), &mut out);
         assert!(out.frames().is_empty(), "pre-operational: no PDO");
         encoder.on_frame(&nmt(NmtCommand::Start, 0), &mut out);
-        encoder.on_frame(&canopen::sync(None), &mut out);
+        encoder.on_frame(&canopen::sync(cob_id::SYNC, None), &mut out);
         let tpdo = out.frames()[0];
         assert_eq!(tpdo.id, 0x1A0);
         let raw = profile

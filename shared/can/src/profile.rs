@@ -280,6 +280,12 @@ impl CanConfig {
         if self.interface.is_empty() {
             return Err(error("", "interface is empty"));
         }
+        if u32::from(self.sync_cob_id) > crate::Frame::MAX_STANDARD_ID {
+            return Err(error(
+                "",
+                format!("sync_cob_id = {:#x} is above 0x7FF", self.sync_cob_id),
+            ));
+        }
         let nodes = [
             (".valve", self.valve.node),
             (".encoder", self.encoder.node),

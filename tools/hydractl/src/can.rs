@@ -130,14 +130,22 @@ fn replay(file: &std::path::Path, config: Option<PathBuf>) -> Result<()> {
     let port = VirtualCanPort::open(&bus, &interface, &[])?;
     let start = std::time::Instant::now();
     for logged in &frames {
+        // A log whose stamps go back sends at once, as canplayer does.
         let due = start + std::time::Duration::from_nanos(logged.time_ns.saturating_sub(first.time_ns));
-        std::thread::sleep(due.saturating_duration_since(std::time::Instant::now()));
-        if bus.termination_requested() {
-            bail!("interrupted");
+        // In slices, so that Ctrl-C in a long gap of the log is heard.
+        loop {
+            if bus.termination_requested() {
+                bail!("interrupted");
+            }
+            let left = due.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            std::thread::sleep(left.min(std::time::Duration::from_millis(100)));
         }
         port.send(&logged.frame)?;
     }
-    let span = frames.last().map_or(0, |l| l.time_ns - first.time_ns) as f64 / 1e9;
+    let span = frames.last().map_or(0, |l| l.time_ns.saturating_sub(first.time_ns)) as f64 / 1e9;
     eprintln!(
         "replayed {} frames over {span:.3} s from {} onto the virtual bus {interface}",
         frames.len(),

@@ -380,18 +380,29 @@ struct ForeignCase {
 /// `bench foreign`: diagnose on plants simulated apart from the model.
 pub fn bench_foreign(plants: usize, duration: f64, seed: u64, only: &[String], json: bool) -> Result<()> {
     use hydractl_sim::foreign::{foreign_plant, Hidden};
-    let mut cases: Vec<Option<Hidden>> = vec![None];
-    cases.extend(Hidden::all().into_iter().map(Some));
+    let mut all_cases: Vec<Option<Hidden>> = vec![None];
+    all_cases.extend(Hidden::all().into_iter().map(Some));
     let name = |h: &Option<Hidden>| h.map_or("none", |h| h.name()).to_owned();
-    if !only.is_empty() {
-        let known: Vec<String> = cases.iter().map(name).collect();
-        if let Some(unknown) = only.iter().find(|o| !known.contains(o)) {
-            bail!("--effects: `{unknown}` is none of {}", known.join(", "));
-        }
-        cases.retain(|c| only.contains(&name(c)));
+    if plants > 1000 {
+        bail!("--plants {plants}: at most 1000 per case (each case draws from its own thousand seeds)");
     }
-    let diagnose_one = |case: usize, hidden: Option<Hidden>, i: usize| -> Result<ForeignRun> {
-        let plant_seed = seed.wrapping_mul(1_000_003).wrapping_add((case * 1000 + i) as u64);
+    let known: Vec<String> = all_cases.iter().map(name).collect();
+    if let Some(unknown) = only.iter().find(|o| !known.contains(o)) {
+        bail!("--effects: `{unknown}` is none of {}", known.join(", "));
+    }
+    let cases: Vec<Option<Hidden>> = all_cases
+        .iter()
+        .filter(|c| only.is_empty() || only.contains(&name(c)))
+        .copied()
+        .collect();
+    // A plant's seed depends on its case's place in the whole list, so a
+    // case run alone meets the same plants as in the full bench.
+    let plant_seed = |hidden: Option<Hidden>, i: usize| {
+        let place = all_cases.iter().position(|c| *c == hidden).unwrap_or(0) as u64;
+        seed.wrapping_mul(1_000_003).wrapping_add(place * 1000 + i as u64)
+    };
+    let diagnose_one = |_case: usize, hidden: Option<Hidden>, i: usize| -> Result<ForeignRun> {
+        let plant_seed = plant_seed(hidden, i);
         let data = foreign_plant(plant_seed, hidden, duration);
         let dataset = Dataset::from_columns(
             "foreign",
@@ -455,7 +466,10 @@ pub fn bench_foreign(plants: usize, duration: f64, seed: u64, only: &[String], j
                 })
             })
             .collect();
-        let mut all: Vec<_> = handles.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect();
+        let mut all: Vec<_> = handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)))
+            .collect();
         all.sort_by_key(|(j, _)| *j);
         all
     });
