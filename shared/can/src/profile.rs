@@ -320,6 +320,11 @@ impl CanConfig {
         if valve_control.mapping.locate(valve_object::DEVICE_MODE, 0).is_none() {
             return Err(error(".valve.control", "the mapping lacks the device mode 0x6042:0"));
         }
+        // The objects' own widths: a set point mapped with 8 bits would be
+        // read as another number.
+        check_width(".valve.set_point", &valve_set_point, (valve_object::SET_POINT, 1), 16)?;
+        check_width(".valve.control", &valve_control, (valve_object::CONTROL_WORD, 0), 16)?;
+        check_width(".valve.control", &valve_control, (valve_object::DEVICE_MODE, 0), 8)?;
         let valve_status = pdo(
             ".valve.status",
             &valve.status,
@@ -331,6 +336,8 @@ impl CanConfig {
             .mapping
             .locate(valve_object::STATUS_WORD, 0)
             .ok_or_else(|| error(".valve.status", "the mapping lacks the status word 0x6041:0"))?;
+        check_width(".valve.status", &valve_status, (valve_object::STATUS_WORD, 0), 16)?;
+        check_width(".valve.status", &valve_status, (valve_object::ACTUAL_VALUE, 1), 16)?;
         if valve.rpdo_timeout_ms == 0 {
             return Err(error(".valve", "rpdo_timeout_ms = 0: the valve's own guard must be on"));
         }
@@ -340,6 +347,12 @@ impl CanConfig {
             Direction::Tpdo,
             self.encoder.node,
             (crate::encoder::object::POSITION, 0),
+        )?;
+        check_width(
+            ".encoder.position",
+            &encoder_position,
+            (crate::encoder::object::POSITION, 0),
+            32,
         )?;
         if self.encoder.counts_per_revolution == 0 {
             return Err(error(".encoder", "counts_per_revolution = 0"));
@@ -408,6 +421,20 @@ fn pdo(
     })
 }
 
+/// `object` is mapped with its type's width.
+fn check_width(section: &str, pdo: &Pdo, object: (u16, u8), bits: u8) -> Result<(), ProfileError> {
+    match pdo.mapping.locate(object.0, object.1) {
+        Some((_, mapped)) if mapped != bits => Err(error(
+            section,
+            format!(
+                "{:#06x}:{} is mapped with {mapped} bits, its type has {bits}",
+                object.0, object.1
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 fn pressure_channel(section: &str, node: &PressureNode) -> Result<PressureChannel, ProfileError> {
     let scale = node.scale();
     let object = scale.value_type.object();
@@ -423,17 +450,7 @@ fn pressure_channel(section: &str, node: &PressureNode) -> Result<PressureChanne
         node.node,
         (object, node.channel),
     )?;
-    if value.value_at.1 != scale.value_type.bits() {
-        return Err(error(
-            section,
-            format!(
-                "{object:#06x}:{} is mapped with {} bits, its type has {}",
-                node.channel,
-                value.value_at.1,
-                scale.value_type.bits()
-            ),
-        ));
-    }
+    check_width(section, &value, (object, node.channel), scale.value_type.bits())?;
     Ok(PressureChannel {
         node: node.node,
         scale,
@@ -680,6 +697,13 @@ mod tests {
             .resolve()
             .expect_err("no set point");
         assert_eq!(lacking.to_string(), "[can.valve.set_point] the mapping lacks 0x6300:1");
+        let narrow = parse("[valve.set_point]\nnumber = 1\nmapping = [0x00030010, 0x63000108]\n")
+            .resolve()
+            .expect_err("8-bit set point");
+        assert_eq!(
+            narrow.to_string(),
+            "[can.valve.set_point] 0x6300:1 is mapped with 8 bits, its type has 16"
+        );
         let node = parse("[encoder]\nnode = 0\n").resolve().expect_err("node 0");
         assert!(node.to_string().starts_with("[can.encoder] node = 0"), "{node}");
         assert!(
