@@ -37,13 +37,18 @@ fn thousands_of_handovers_under_load_are_each_read_once_in_order_and_acknowledge
     let handovers: Outlet<Handover> = Outlet::open(&supervisor, service::HANDOVER).expect("outlet");
     let acks: Reader<HandoverAck> = Reader::open(&supervisor, service::HANDOVER_ACK, 256).expect("acks");
     // Each stage's process reads once a period, as the loop's processes do.
+    // A handover from before a process started is old news to it, so the
+    // first one is published only once every reader is open: on a loaded
+    // machine a thread may take far longer than any fixed pause to start.
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let readers: Vec<_> = STAGES
         .iter()
         .map(|&stage| {
-            let (scope, stop) = (scope.clone(), stop.clone());
+            let (scope, stop, ready) = (scope.clone(), stop.clone(), ready_tx.clone());
             std::thread::spawn(move || {
                 let bus = Bus::open(&scope, "reader").expect("node");
                 let mut inbox = HandoverInbox::open(&bus, stage).expect("inbox");
+                ready.send(()).expect("ready");
                 let mut seen = Vec::new();
                 while !stop.load(Ordering::Relaxed) {
                     while let Some(h) = inbox.next_handover().expect("read") {
@@ -59,7 +64,12 @@ fn thousands_of_handovers_under_load_are_each_read_once_in_order_and_acknowledge
             })
         })
         .collect();
-    std::thread::sleep(Duration::from_millis(50));
+    for _ in STAGES {
+        ready_rx
+            .recv_timeout(Duration::from_secs(60))
+            .expect("every reader open");
+    }
+    std::thread::sleep(Duration::from_millis(1));
     let mut acked = 0u64;
     let mut expected: Vec<Vec<u64>> = vec![Vec::new(); STAGES.len()];
     for seq in 0..HANDOVERS {
@@ -89,6 +99,12 @@ fn thousands_of_handovers_under_load_are_each_read_once_in_order_and_acknowledge
                     acked += 1;
                 }
                 std::thread::sleep(Duration::from_micros(200));
+            }
+            // A lost answer would make every later burst wait its full
+            // deadline: fail at once, naming the burst.
+            if acked <= seq {
+                stop.store(true, Ordering::Relaxed);
+                panic!("burst ending at handover {seq}: {acked} answers after 5 s");
             }
         }
     }
