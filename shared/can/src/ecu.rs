@@ -193,7 +193,7 @@ impl ValveEcu {
         if id == self.profile_set_point.cob_id {
             // A PDO of the wrong length is not processed (CiA 301).
             if let Ok(values) = self.profile_set_point.mapping.unpack(frame, "valve set point RPDO") {
-                let slot = self.slot(&self.profile_set_point, self.profile_set_point.value_at);
+                let slot = self.profile_set_point.slot(self.profile_set_point.value_at);
                 self.set_point = canopen::signed(values[slot], 16) as i16;
                 self.last_set_point_ns = Some(now_ns);
             } else {
@@ -204,9 +204,9 @@ impl ValveEcu {
         }
         if id == self.profile_control.cob_id {
             if let Ok(values) = self.profile_control.mapping.unpack(frame, "valve control RPDO") {
-                let word = values[self.slot(&self.profile_control, self.profile_control.value_at)] as u16;
+                let word = values[self.profile_control.slot(self.profile_control.value_at)] as u16;
                 if let Some((offset, _)) = self.profile_control.mapping.locate(valve_object::DEVICE_MODE, 0) {
-                    let mode = values[self.slot(&self.profile_control, (offset, 8))] as u8;
+                    let mode = values[self.profile_control.slot((offset, 8))] as u8;
                     self.device_mode_bus = mode == valve_object::DEVICE_MODE_BUS;
                 }
                 self.on_control_word(word, now_ns);
@@ -249,23 +249,11 @@ impl ValveEcu {
         }
     }
 
-    /// Which unpacked value sits at a byte offset.
-    fn slot(&self, pdo: &crate::profile::Pdo, at: (usize, u8)) -> usize {
-        let mut offset = 0;
-        for (i, e) in pdo.mapping.entries().iter().enumerate() {
-            if offset == at.0 {
-                return i;
-            }
-            offset += usize::from(e.bits / 8);
-        }
-        0
-    }
-
     fn status_frame(&self) -> Result<Frame, crate::CanError> {
         let mut values = [0u64; 8];
         let n = self.profile_status.mapping.entries().len();
-        values[self.slot(&self.profile_status, self.status_word_at)] = u64::from(self.dsm.state().status_word());
-        values[self.slot(&self.profile_status, self.profile_status.value_at)] = valve::raw_i16(self.actual);
+        values[self.profile_status.slot(self.status_word_at)] = u64::from(self.dsm.state().status_word());
+        values[self.profile_status.slot(self.profile_status.value_at)] = valve::raw_i16(self.actual);
         self.profile_status
             .mapping
             .pack(self.profile_status.cob_id, &values[..n])

@@ -11,6 +11,8 @@
 //! - [`pressure`]: CiA 404, the pressure transducers;
 //! - [`ecu`]: the simulated ECUs (valve, encoder, transducers) and the
 //!   master's heartbeat consumer;
+//! - [`master`]: the master's side: the SYNC producer and PDO consumer,
+//!   and the valve's bring-up, set point and status;
 //! - [`timing`]: how long a frame occupies the bus, stuffing included, and
 //!   whether a period's frames fit;
 //! - [`candump`]: can-utils' `candump -l` log lines;
@@ -23,6 +25,7 @@ pub mod canopen;
 pub mod ecu;
 pub mod encoder;
 mod frame;
+pub mod master;
 pub mod pressure;
 pub mod profile;
 pub mod timing;

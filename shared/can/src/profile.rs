@@ -12,6 +12,7 @@ use crate::encoder::EncoderScale;
 use crate::pressure::{PressureScale, PressureUnit, ValueType};
 use crate::timing;
 use crate::valve::object as valve_object;
+use crate::{CanError, Frame};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -218,6 +219,26 @@ pub struct Pdo {
     pub mapping: PdoMapping,
     /// Byte offset and width of the object this stack reads or writes.
     pub value_at: (usize, u8),
+}
+
+impl Pdo {
+    /// The index among the mapping's entries of the object at byte `at.0`.
+    pub fn slot(&self, at: (usize, u8)) -> usize {
+        let mut offset = 0;
+        for (i, e) in self.mapping.entries().iter().enumerate() {
+            if offset == at.0 {
+                return i;
+            }
+            offset += usize::from(e.bits / 8);
+        }
+        0
+    }
+
+    /// The raw value of the object this stack reads (`value_at`); a frame
+    /// of the wrong length is refused, naming its COB-ID and `what`.
+    pub fn read(&self, frame: &Frame, what: &'static str) -> Result<u64, CanError> {
+        Ok(self.mapping.unpack(frame, what)?[self.slot(self.value_at)])
+    }
 }
 
 /// The `[can]` table checked and resolved: every COB-ID and mapping the
