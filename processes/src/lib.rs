@@ -10,6 +10,8 @@ use hydractl_config::Config;
 use hydractl_samples::SensorSample;
 use hydractl_stages::SensorEstimate;
 
+pub mod can_sensors;
+pub mod can_valve;
 pub mod handover;
 pub mod live_plant;
 pub mod recording;

@@ -28,6 +28,7 @@ use hydractl_samples::{
 };
 use hydractl_sim::build_plant;
 
+use crate::can_sensors::CanSensors;
 use crate::handover::{HandoverInbox, PlantSeat, SeatChange};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -54,7 +55,19 @@ pub fn run(kind: PlantKind) -> Result<()> {
         PlantKind::Machine => source::MACHINE,
     };
     let bus = &started.bus;
-    let (mut plant, mut sensors) = build_plant(&config, &[])?;
+    // The machine on CAN is read through its bus; its valve is the valve
+    // process's to drive (hydractl-can's ValveMaster).
+    let can_profile = match (kind, &started.config.can) {
+        (PlantKind::Machine, Some(can)) => Some(can.resolve().context("machine: [can]")?),
+        _ => None,
+    };
+    let mut body = match &can_profile {
+        Some(profile) => Body::Can(CanSensors::open(bus, profile)?),
+        None => {
+            let (plant, sensors) = build_plant(&config, &[])?;
+            Body::Simulated { plant, sensors }
+        }
+    };
     let readings: Outlet<PlantReading> = Outlet::open(bus, service::PLANT_READING)?;
     let standby_readings: Outlet<PlantReading> = Outlet::open(bus, service::PLANT_STANDBY)?;
     let stream: Reader<PlantReading> = Reader::open(bus, service::PLANT_READING, 4)?;
@@ -69,6 +82,8 @@ pub fn run(kind: PlantKind) -> Result<()> {
     let mut seq = 0u64;
     if let Some(resume) = started.args.resume {
         seq = resume.seq + 1;
+    }
+    if let (Some(resume), Body::Simulated { plant, sensors }) = (started.args.resume, &mut body) {
         let mut state = plant.state();
         state.angle = resume.angle;
         state.load_angle = resume.angle;
@@ -132,7 +147,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
                 // The machine ran on with the valve holding its command.
                 StallPolicy::CatchUp => {
                     let overdue = (behind.as_nanos() / period.as_nanos()) as u64;
-                    plant.advance(command, substeps * overdue as usize);
+                    body.advance(command, substeps * overdue as usize);
                     seq += overdue;
                     next_tick += period * overdue as u32;
                     if loop_running {
@@ -158,7 +173,9 @@ pub fn run(kind: PlantKind) -> Result<()> {
         match change {
             Some(SeatChange::Take { at_seq }) => {
                 eprintln!("{name}: drives the loop from reading {at_seq}");
-                if let (PlantKind::Simulation, Some(r)) = (kind, last_measured) {
+                if let (Body::Simulated { plant, sensors }, PlantKind::Simulation, Some(r)) =
+                    (&mut body, kind, last_measured)
+                {
                     // From the last measured state, the valve neutral.
                     let mut state = plant.state();
                     state.spool = 0.0;
@@ -182,17 +199,17 @@ pub fn run(kind: PlantKind) -> Result<()> {
             Some(SeatChange::Leave) => command = 0.0,
             None => {}
         }
-        let bus_lost = bus_lost_at.is_some_and(|at| Instant::now() >= at);
+        let bus_lost = bus_lost_at.is_some_and(|at| Instant::now() >= at) || body.sensor_lost();
         if !seat.in_charge() || bus_lost {
             if kind == PlantKind::Machine {
                 // The machine exists whether or not it drives the loop: its
                 // valve neutral, its readings (if its bus works) on standby.
-                let reading = read_sensors(&plant, &mut sensors, seq, late_commands, source_code, 0);
+                let reading = body.read(seq, late_commands, source_code, 0)?;
                 if !bus_lost {
                     standby_readings.publish(reading)?;
                 }
                 command = 0.0;
-                plant.advance(command, substeps);
+                body.advance(command, substeps);
                 seq += 1;
             }
             next_tick += period;
@@ -201,15 +218,13 @@ pub fn run(kind: PlantKind) -> Result<()> {
         let neutral_for = without_command
             .saturating_sub(amplifier_timeout)
             .min(u64::from(u32::MAX)) as u32;
-        readings.publish(read_sensors(
-            &plant,
-            &mut sensors,
-            seq,
-            late_commands,
-            source_code,
-            neutral_for,
-        ))?;
-        let deadline = Instant::now() + command_timeout;
+        readings.publish(body.read(seq, late_commands, source_code, neutral_for)?)?;
+        // The machine on CAN does not wait for its valve: the next SYNC is
+        // due at the next period, whatever the command does.
+        let deadline = match body {
+            Body::Can(_) => next_tick + period.mul_f64(0.9),
+            Body::Simulated { .. } => Instant::now() + command_timeout,
+        };
         let mut fresh = false;
         while !fresh {
             let remaining = deadline.saturating_duration_since(Instant::now());
@@ -237,11 +252,66 @@ pub fn run(kind: PlantKind) -> Result<()> {
                 command = 0.0;
             }
         }
-        plant.advance(command, substeps);
+        body.advance(command, substeps);
         next_tick += period;
         seq += 1;
     }
     Ok(())
+}
+
+/// What the plant in charge reads and moves: the simulated rotator, or
+/// the machine through its CAN bus.
+// One for the whole process, made at start: its size is no cost.
+#[allow(clippy::large_enum_variant)]
+enum Body {
+    Simulated { plant: Plant, sensors: SensorModel },
+    Can(CanSensors),
+}
+
+impl Body {
+    /// This period's reading: the sensor model's, or a SYNC's PDOs
+    /// (awaited up to their deadline).
+    fn read(&mut self, seq: u64, late_commands: u64, source: u32, amplifier_neutral_for: u32) -> Result<PlantReading> {
+        match self {
+            Self::Simulated { plant, sensors } => Ok(read_sensors(
+                plant,
+                sensors,
+                seq,
+                late_commands,
+                source,
+                amplifier_neutral_for,
+            )),
+            Self::Can(can) => {
+                let (values, sync_time_ns) = can.acquire()?;
+                Ok(PlantReading {
+                    sensor_seq: seq,
+                    sensor_time_ns: sync_time_ns,
+                    angle: values.angle,
+                    p_a: values.p_a,
+                    p_b: values.p_b,
+                    // The machine's true angle is its encoder's.
+                    true_angle: values.angle,
+                    late_commands,
+                    source,
+                    amplifier_neutral_for,
+                })
+            }
+        }
+    }
+
+    /// One or more periods with `command` held: the simulated rotator
+    /// integrates; the machine moves by itself, its valve driven by the
+    /// valve process.
+    fn advance(&mut self, command: f64, substeps: usize) {
+        if let Self::Simulated { plant, .. } = self {
+            plant.advance(command, substeps);
+        }
+    }
+
+    /// A sensor node on CAN has gone silent: the machine is lost.
+    fn sensor_lost(&self) -> bool {
+        matches!(self, Self::Can(can) if can.lost().is_some())
+    }
 }
 
 /// How long a fresh plant waits for the chain before it starts anyway (the

@@ -7,32 +7,68 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use hydractl_bus::devices::{SimulatedValve, ValveDevice};
 use hydractl_bus::{clock, run_loop, Inlet, Outlet, Wake};
-use hydractl_samples::{fault, service, valid, SensorSample, TorqueSample, ValveSample};
+use hydractl_processes::can_valve::CanValve;
+use hydractl_samples::{fault, service, source, valid, SensorSample, TorqueSample, ValveSample};
 use hydractl_stages::{ValveFaults, ValveStage};
 
 const COMMAND: usize = 0;
 const SENSOR: usize = 1;
 
+/// The valve the command drives.
+enum Device {
+    /// The simulated plant reads the published state itself.
+    Simulated,
+    /// The machine's valve on CAN; driven only for the machine's readings
+    /// (the loop on the simulated plant leaves it neutral).
+    Can(Box<CanValve>),
+}
+
 /// The valve device and the valve's published state, driven together:
 /// what the device is told is what the loop sees. Dropped, it drives
 /// neutral, whatever ended the process's loop.
-struct Actuator<D: ValveDevice> {
-    device: D,
+struct Actuator {
+    device: Device,
     out: Outlet<ValveSample>,
     newest: SensorSample,
     /// The last thing driven was [`Actuator::off`].
     is_off: bool,
 }
 
-impl<D: ValveDevice> Actuator<D> {
-    fn drive(&mut self, sample: ValveSample) -> Result<()> {
+impl Actuator {
+    fn drive(&mut self, mut sample: ValveSample) -> Result<()> {
         // The device first: the valve is what moves the load.
-        self.device.drive(sample.command)?;
+        let mut device_fault = None;
+        if let Device::Can(valve) = &mut self.device {
+            let from_machine = self.newest.source == source::MACHINE;
+            valve.drive(sample.command, from_machine)?;
+            device_fault = valve.fault();
+            // What the machine's valve does is what is published: neutral
+            // until it reports Active.
+            if from_machine && !valve.active() {
+                sample.command = 0.0;
+            }
+            if device_fault.is_some() {
+                sample.command = 0.0;
+                sample.faults |= fault::DEVICE;
+            }
+        }
         self.is_off = sample.faults & fault::OFF != 0;
         self.out.publish(sample)?;
-        Ok(())
+        match device_fault {
+            // Published first, so that the loop and the recording see why.
+            Some(why) => anyhow::bail!("valve: {why}; neutral sent, ending so that the valve is brought up afresh"),
+            None => Ok(()),
+        }
+    }
+
+    /// Neutral, and a CAN valve put to hold: the process is leaving.
+    fn leave(&mut self) -> Result<()> {
+        let off = self.off();
+        if let Device::Can(valve) = &mut self.device {
+            valve.hold()?;
+        }
+        off
     }
 
     /// Neutral, answering no reading: at start and at the end.
@@ -49,11 +85,11 @@ impl<D: ValveDevice> Actuator<D> {
     }
 }
 
-impl<D: ValveDevice> Drop for Actuator<D> {
+impl Drop for Actuator {
     fn drop(&mut self) {
         // Nothing is left to report an error to: neutral was tried.
         if !self.is_off {
-            let _ = self.off();
+            let _ = self.leave();
         }
     }
 }
@@ -66,8 +102,15 @@ fn main() -> Result<()> {
     let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
     // Its output once its inputs are open (a fresh plant starts once every
     // stage publishes), and at once neutral, before any input is read.
+    let device = match &started.config.can {
+        Some(can) => {
+            let profile = can.resolve().context("valve: [can]")?;
+            Device::Can(Box::new(CanValve::open(bus, &profile)?))
+        }
+        None => Device::Simulated,
+    };
     let mut actuator = Actuator {
-        device: SimulatedValve,
+        device,
         out: Outlet::open(bus, service::VALVE)?,
         newest: SensorSample::default(),
         is_off: false,
@@ -130,7 +173,7 @@ fn main() -> Result<()> {
         },
     );
     // Neutral before anything is reported: the loop is over, however it ended.
-    let stopped = actuator.off().context("valve: driving neutral at the end");
+    let stopped = actuator.leave().context("valve: driving neutral at the end");
     ended?;
     if let Some(e) = failure {
         return Err(e);

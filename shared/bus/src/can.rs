@@ -80,6 +80,19 @@ pub trait CanPort {
     fn error_frames(&self) -> u64;
 }
 
+/// The port the `[can]` table names: its SocketCAN interface, or a station
+/// on the virtual bus of that name.
+pub fn open_port(
+    bus: &Bus,
+    profile: &hydractl_can::profile::Profile,
+    filters: &[Filter],
+) -> Result<Box<dyn CanPort>, CanPortError> {
+    Ok(match profile.transport {
+        hydractl_can::profile::Transport::Socketcan => Box::new(SocketCanPort::open(&profile.interface, filters)?),
+        hydractl_can::profile::Transport::Virtual => Box::new(VirtualCanPort::open(bus, &profile.interface, filters)?),
+    })
+}
+
 /// Both ports' filter set, fixed size.
 #[derive(Debug, Clone, Copy)]
 struct Filters {

@@ -16,7 +16,7 @@ mod wait;
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
 pub use outlet::{Inlet, Outlet, PublisherWatch, Reader};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
-pub use wait::{guarded, run_loop, run_single, run_until, Flow, Input, LoopExit, Wake};
+pub use wait::{guarded, run_loop, run_single, run_until, wait_input, Flow, Input, LoopExit, Wake};
 
 /// The directory of the running executable, where cargo puts its sibling
 /// binaries (the supervisor, the processes).

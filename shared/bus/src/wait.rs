@@ -169,6 +169,31 @@ fn wait_loop(
     result
 }
 
+/// Sleeps until `input` has something or `timeout` passes, inside a
+/// loop's cycle (a SYNC's answers, awaited up to their deadline); a
+/// listener's notifications are taken. A signal only ends the wait early:
+/// the loop around sees it.
+pub fn wait_input(input: Input<'_>, timeout: Duration) -> Result<(), BusError> {
+    use nix::errno::Errno;
+    use nix::poll::{ppoll, PollFd, PollFlags};
+    use nix::sys::time::TimeSpec;
+    let fd = match input {
+        Input::Listener(listener) => listener_fd(listener),
+        Input::Socket(fd) => fd,
+    };
+    let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
+    match ppoll(&mut fds, Some(TimeSpec::from_duration(timeout)), None) {
+        Ok(_) | Err(Errno::EINTR) => {}
+        Err(e) => return Err(BusError::ipc("waiting on an input", e)),
+    }
+    if let Input::Listener(listener) = input {
+        listener
+            .try_wait(|_| {})
+            .map_err(|e| BusError::ipc("taking an input's notification", e))?;
+    }
+    Ok(())
+}
+
 /// Runs one step inside a loop callback: an error stops the loop and is
 /// kept for the caller to return once the loop is over.
 pub fn guarded<E>(failure: &mut Option<E>, step: impl FnOnce() -> Result<(), E>) -> Flow {

@@ -13,6 +13,8 @@
 //!   master's heartbeat consumer;
 //! - [`master`]: the master's side: the SYNC producer and PDO consumer,
 //!   and the valve's bring-up, set point and status;
+//! - [`stats`]: a listener's figures of the bus: load, frames per period,
+//!   late and lost PDOs, EMCYs, error frames;
 //! - [`timing`]: how long a frame occupies the bus, stuffing included, and
 //!   whether a period's frames fit;
 //! - [`candump`]: can-utils' `candump -l` log lines;
@@ -28,6 +30,7 @@ mod frame;
 pub mod master;
 pub mod pressure;
 pub mod profile;
+pub mod stats;
 pub mod timing;
 pub mod valve;
 pub mod wire;

@@ -356,8 +356,10 @@ mod tests {
         CanConfig::default().resolve().expect("defaults")
     }
 
+    type Ecu<'a> = &'a mut dyn FnMut(&Frame, &mut Outbox);
+
     /// Hands `frames` to each ECU and returns everything they answered.
-    fn exchange(ecus: &mut [&mut dyn FnMut(&Frame, &mut Outbox)], frames: &[Frame]) -> Vec<Frame> {
+    fn exchange(ecus: &mut [Ecu<'_>], frames: &[Frame]) -> Vec<Frame> {
         let mut heard = Vec::new();
         for f in frames {
             for ecu in ecus.iter_mut() {

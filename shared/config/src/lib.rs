@@ -118,6 +118,17 @@ pub struct MachineConfig {
     /// The stand-in's sensor bus goes silent this long after it starts, as
     /// a lost CAN bus would: for trying the fallback.
     pub bus_lost_after_s: Option<f64>,
+    /// On the virtual CAN bus: one simulated node stops (no heartbeat, no
+    /// PDOs) this long after the ECUs start, as a cut cable would: for
+    /// trying the master's heartbeat watch.
+    pub silent_node: Option<SilentNode>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SilentNode {
+    pub node: u8,
+    pub after_s: f64,
 }
 
 /// How deep `base = "FILE"` may chain.

@@ -43,6 +43,14 @@ impl Config {
                 });
             }
         }
+        if let Some(silent) = self.machine.as_ref().and_then(|m| m.silent_node) {
+            if !(silent.after_s.is_finite() && silent.after_s > 0.0) {
+                return Err(ConfigError::Parse {
+                    path: path.to_owned(),
+                    message: format!("[machine.silent_node] after_s must be positive, got {}", silent.after_s),
+                });
+            }
+        }
         if let Some(can) = &self.can {
             let profile = can.resolve().map_err(|source| ConfigError::Can {
                 path: path.to_owned(),

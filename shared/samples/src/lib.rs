@@ -92,6 +92,9 @@ pub mod fault {
     /// The valve process is starting or stopping: neutral, answering no
     /// reading (its `sensor_seq` is the newest it knew, if any).
     pub const OFF: u32 = 1 << 5;
+    /// The valve device (on CAN) faulted or went silent: neutral, and the
+    /// valve process ends so that the supervisor brings it up afresh.
+    pub const DEVICE: u32 = 1 << 6;
 }
 
 /// Codes of the structure and variants, for samples that report them.

@@ -96,6 +96,26 @@ struct RunSummary {
     /// What the recording holds, read back from its file(s) after the run.
     #[serde(skip_serializing_if = "Option::is_none")]
     recording: Option<RecordingReport>,
+    /// The machine's CAN bus as a listener on it saw it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    can: Option<CanSummary>,
+}
+
+#[derive(Serialize)]
+struct CanSummary {
+    /// The interface (`vcan0` on the virtual bus, `can0` on the vehicle).
+    bus: String,
+    bitrate: u32,
+    /// Bus time of every frame, stuffing counted bit for bit, over the run.
+    load_percent: f64,
+    /// Frames per SYNC.
+    frames_per_period: f64,
+    /// A period's TPDO that came after `[can] pdo_deadline_us`.
+    late_pdos: u64,
+    /// A period's TPDO that never came before the next SYNC.
+    lost_frames: u64,
+    error_frames: u64,
+    emcy: u64,
 }
 
 #[derive(Serialize)]
@@ -212,17 +232,12 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     let config = Config::load_or_default(args.config.as_deref())?;
     if let Some(can) = &config.can {
-        // Running such a config on the simulated plant's shared memory
-        // would look like a run on the machine's devices.
-        bail!(
-            "the config's [can] table ({} on {}) describes the machine's CAN devices, which the live stack does not drive yet; \
-             `hydractl can budget` reads it",
-            can.interface,
-            match can.transport {
-                hydractl_can::profile::Transport::Virtual => "the virtual bus",
-                hydractl_can::profile::Transport::Socketcan => "SocketCAN",
-            }
-        );
+        if can.transport == hydractl_can::profile::Transport::Socketcan {
+            // Said here, once, before anything starts: a process that could
+            // not open it would only be restarted again and again.
+            hydractl_bus::can::SocketCanPort::open(&can.interface, &[])
+                .with_context(|| format!("the machine's CAN bus ([can] in {})", config_name(&args.config)))?;
+        }
     }
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
         eprintln!("{e}");
@@ -240,6 +255,15 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     scope.clean_stale()?;
     let dir = hydractl_bus::binary_dir()?;
+    // The virtual bus and the simulated ECUs are the machine here: they are
+    // there before the stack and outlive it, so that the valve's last
+    // frames reach the valve.
+    let _machine = match &config.can {
+        Some(can) if can.transport == hydractl_can::profile::Transport::Virtual => {
+            Some(VirtualMachine::start(&scope, &dir, args.config.as_deref())?)
+        }
+        _ => None,
+    };
     let mut command = Command::new(dir.join("supervisor"));
     if let Some(config) = &args.config {
         command.arg("--config").arg(config);
@@ -276,6 +300,12 @@ pub fn run(args: RunArgs) -> Result<()> {
             r.dropped,
             r.gaps,
             r.files.join(", ")
+        );
+    }
+    if let Some(c) = &summary.can {
+        eprintln!(
+            "CAN {} at {} bit/s: load {:.1} %, {:.2} frames a period, {} late PDOs, {} lost, {} error frames, {} EMCY",
+            c.bus, c.bitrate, c.load_percent, c.frames_per_period, c.late_pdos, c.lost_frames, c.error_frames, c.emcy
         );
     }
     for switch in &summary.plant_switches {
@@ -346,8 +376,21 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     // Each plant counts its own late commands.
     let mut late_by_source = [0u64; 2];
     let mut failure = None;
+    let mut can_watch = match &config.can {
+        Some(can) => {
+            let profile = can.resolve()?;
+            let port = hydractl_bus::can::open_port(&bus, &profile, &[])?;
+            Some((port, hydractl_can::stats::BusStats::new(&profile), profile))
+        }
+        None => None,
+    };
     let exit = run_loop(&[], Some(Duration::from_millis(10)), &bus, |_| {
         let mut step = || -> Result<Flow> {
+            if let Some((port, stats, _)) = &mut can_watch {
+                while let Some(received) = port.receive()? {
+                    stats.on_frame(&received.frame, received.time_ns);
+                }
+            }
             while let Some(v) = valve.next()? {
                 // The valve process starting or stopping answers no reading.
                 if v.faults & hydractl_samples::fault::OFF != 0 {
@@ -376,7 +419,11 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
             while let Some(p) = position.next()? {
                 by_stage[2].record_between(p.sensor_time_ns, p.stage_time_ns);
                 let e = p.reference_angle - p.angle;
-                tracking.push(e);
+                // An invalid reading (a PDO that did not come) has no angle:
+                // the valve was neutral for it, and the next one counts.
+                if e.is_finite() {
+                    tracking.push(e);
+                }
                 if after_fault
                     .first()
                     .is_some_and(|&(_, at)| tracking.count() >= at + per_second)
@@ -542,6 +589,20 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
         plant: if on_simulation { "simulation" } else { "machine" },
         plant_switches,
         recording: None,
+        can: can_watch.map(|(port, stats, profile)| {
+            let f = stats.figures();
+            CanSummary {
+                bus: profile.interface.clone(),
+                bitrate: profile.bitrate,
+                load_percent: f.load_percent,
+                frames_per_period: f.frames_per_period,
+                late_pdos: f.late_pdos,
+                lost_frames: f.lost_frames,
+                // SocketCAN counts the controller's error frames itself.
+                error_frames: f.error_frames.max(port.error_frames()),
+                emcy: f.emcy,
+            }
+        }),
     })
 }
 
@@ -621,6 +682,58 @@ fn check_writable(path: &Path, flag: &str) -> Result<()> {
         .with_context(|| format!("{flag} {}: cannot write in {}", path.display(), dir.display()))?;
     std::fs::remove_file(&probe).with_context(|| format!("removing {}", probe.display()))?;
     Ok(())
+}
+
+fn config_name(path: &Option<PathBuf>) -> String {
+    path.as_ref()
+        .map_or_else(|| "the built-in config".to_owned(), |p| p.display().to_string())
+}
+
+/// The machine on the virtual CAN bus: the bus's wire (`canbus`) and the
+/// simulated ECUs (`ecus`), stopped in the reverse order when dropped.
+struct VirtualMachine {
+    children: Vec<(Child, &'static str)>,
+}
+
+impl VirtualMachine {
+    fn start(scope: &RunScope, dir: &Path, config: Option<&Path>) -> Result<Self> {
+        let mut machine = Self { children: Vec::new() };
+        for name in ["canbus", "ecus"] {
+            let mut command = Command::new(dir.join(name));
+            if let Some(config) = config {
+                command.arg("--config").arg(config);
+            }
+            let child = command
+                .env(PREFIX_ENV, scope.prefix())
+                .stdin(Stdio::null())
+                .spawn()
+                .with_context(|| format!("starting {}", dir.join(name).display()))?;
+            machine.children.push((child, name));
+            // The wire first: a frame sent before it listens is lost.
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while !scope.live_node_names()?.iter().any(|n| n == name) {
+                if let Some((child, _)) = machine.children.last_mut() {
+                    if let Some(status) = child.try_wait()? {
+                        bail!("{name} ended at start ({status})");
+                    }
+                }
+                if Instant::now() >= deadline {
+                    bail!("{name} did not open its node within 5 s");
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+        Ok(machine)
+    }
+}
+
+impl Drop for VirtualMachine {
+    fn drop(&mut self) {
+        for (child, name) in self.children.iter_mut().rev() {
+            // Nothing is left to report to: the run's result is out.
+            let _ = stop_child(child, name, Duration::from_secs(2));
+        }
+    }
 }
 
 /// SIGTERM, then SIGKILL if `child` has not stopped within `grace`.
