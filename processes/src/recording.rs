@@ -8,8 +8,8 @@ use std::collections::BTreeSet;
 
 use anyhow::{Context, Result};
 use hydractl_bus::{Bus, Outlet, Reader};
-use hydractl_recording::{ChannelHandle, RecordingWriter};
-use hydractl_samples::{visit_kind, KindVisitor, Recordable, RecorderStatus, STACK_SERVICES};
+use hydractl_recording::{encode_frame, ChannelHandle, RecordingWriter, CAN_FRAME_KIND};
+use hydractl_samples::{visit_kind, CanFrameSample, KindVisitor, Recordable, RecorderStatus, STACK_SERVICES};
 
 /// Samples a tap keeps for the recorder between two drains: 256 ms of a
 /// 1 kHz loop, far more than the recorder's 5 ms tick.
@@ -38,30 +38,71 @@ struct TypedTap<T: Recordable> {
 
 impl<T: Recordable> Tap for TypedTap<T> {
     fn drain(&mut self, writer: &mut RecordingWriter) -> Result<Missing> {
-        let mut skipped = 0;
-        let mut received = 0;
+        let mut count = SeqCount::default();
         while let Some(sample) = self.reader.next()? {
-            received += 1;
-            let seq = T::KIND.sequence(bytemuck::bytes_of(&sample)).unwrap_or(0);
-            if let Some(last) = self.last_seq {
-                skipped += seq.saturating_sub(last + 1);
-            }
-            self.last_seq = Some(self.last_seq.map_or(seq, |last| last.max(seq)));
+            count.take(
+                &mut self.last_seq,
+                T::KIND.sequence(bytemuck::bytes_of(&sample)).unwrap_or(0),
+            );
             writer.write_sample(self.channel, &sample)?;
         }
+        Ok(count.missing())
+    }
+}
+
+/// A drain's received samples and the sequence numbers skipped between them.
+#[derive(Default)]
+struct SeqCount {
+    received: usize,
+    skipped: u64,
+}
+
+impl SeqCount {
+    fn take(&mut self, last_seq: &mut Option<u64>, seq: u64) {
+        self.received += 1;
+        if let Some(last) = *last_seq {
+            self.skipped += seq.saturating_sub(last + 1);
+        }
+        *last_seq = Some(last_seq.map_or(seq, |last| last.max(seq)));
+    }
+
+    fn missing(&self) -> Missing {
         // iceoryx2 does not report an overflow; it can only have happened
         // if the buffer was full, i.e. if this drain took a whole buffer.
-        Ok(if received >= TAP_BUFFER {
+        if self.received >= TAP_BUFFER {
             Missing {
-                dropped: skipped,
+                dropped: self.skipped,
                 gaps: 0,
             }
         } else {
             Missing {
                 dropped: 0,
-                gaps: skipped,
+                gaps: self.skipped,
             }
-        })
+        }
+    }
+}
+
+/// A CAN bus's traffic: every frame the wire delivered, as
+/// `can_msgs/msg/Frame` on the bus's channel.
+struct CanTap {
+    reader: Reader<CanFrameSample>,
+    channel: ChannelHandle,
+    interface: String,
+    last_seq: Option<u64>,
+    encoded: Vec<u8>,
+}
+
+impl Tap for CanTap {
+    fn drain(&mut self, writer: &mut RecordingWriter) -> Result<Missing> {
+        let mut count = SeqCount::default();
+        while let Some(sample) = self.reader.next()? {
+            count.take(&mut self.last_seq, sample.seq);
+            self.encoded.clear();
+            encode_frame(&sample, &self.interface, &mut self.encoded);
+            writer.write_encoded(self.channel, sample.seq, sample.time_ns, &self.encoded)?;
+        }
+        Ok(count.missing())
     }
 }
 
@@ -125,6 +166,23 @@ impl Recorder {
     }
 
     fn tap(&mut self, bus: &Bus, name: &str, type_name: &str) -> Result<bool> {
+        if type_name == CAN_FRAME_KIND.type_name {
+            // What crossed the wire; each station's submissions on `…/tx`
+            // are the same frames before arbitration.
+            let Some(interface) = hydractl_samples::service::can_rx_interface(name) else {
+                return Ok(false);
+            };
+            let tap = CanTap {
+                reader: Reader::open(bus, name, TAP_BUFFER)?,
+                channel: self.writer.add_channel(name, &CAN_FRAME_KIND)?,
+                interface: interface.to_owned(),
+                last_seq: None,
+                encoded: Vec::with_capacity(64),
+            };
+            self.taps.push(Box::new(tap));
+            self.tapped.insert(name.to_owned());
+            return Ok(true);
+        }
         let opened = visit_kind(
             type_name,
             OpenTap {

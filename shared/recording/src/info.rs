@@ -42,7 +42,9 @@ pub fn summarize(path: &Path) -> Result<RecordingSummary, RecordingError> {
     let mut channels: BTreeMap<String, ChannelSummary> = BTreeMap::new();
     let mut span: Option<(u64, u64)> = None;
     let outcome = read_messages(path, |m| {
-        let seq = m.kind.sequence(m.payload).unwrap_or(0);
+        // A CAN frame's channel has no sequence in its payload: the
+        // header's (32 bits, enough within a recording's span of gaps).
+        let seq = m.kind.sequence(m.payload).unwrap_or(u64::from(m.mcap_sequence));
         let c = channels.entry(m.topic.to_owned()).or_insert_with(|| ChannelSummary {
             topic: m.topic.to_owned(),
             schema: m.kind.schema_name.to_owned(),

@@ -4,11 +4,13 @@
 //! reflection. This crate knows files and bytes, not IPC: the recorder
 //! process feeds it what it receives.
 
+mod can;
 mod export;
 mod info;
 mod read;
 mod write;
 
+pub use can::{decode_frame, encode_frame, is_can_frame, RecordedFrame, CAN_FRAME_KIND};
 pub use export::{export_rows, write_csv, Export, ModelRow, MODEL_COLUMNS};
 pub use info::{summarize, ChannelSummary, RecordingSummary};
 pub use read::{decode, read_messages, ReadOutcome, RecordedMessage};
@@ -41,6 +43,13 @@ pub enum RecordingError {
         index: u64,
         got: usize,
         want: usize,
+    },
+    #[error("{path}: message {index} on `{topic}` is not a can_msgs/msg/Frame: {reason}")]
+    BadFrame {
+        path: PathBuf,
+        topic: String,
+        index: u64,
+        reason: String,
     },
     #[error("{path}: message {index} on `{topic}` does not start with the little-endian CDR header")]
     BadHeader { path: PathBuf, topic: String, index: u64 },

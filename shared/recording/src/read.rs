@@ -16,6 +16,8 @@ pub struct RecordedMessage<'a> {
     pub payload: &'a [u8],
     /// The message's index on its channel, from 0.
     pub index: u64,
+    /// The MCAP header's sequence: the low 32 bits of the sample's.
+    pub mcap_sequence: u32,
 }
 
 /// The sample in a message, if the message holds a `T`.
@@ -85,6 +87,7 @@ pub fn read_messages(
                 let schema = schemas.get(&channel.schema_id).cloned().unwrap_or_default();
                 let kind = KINDS
                     .into_iter()
+                    .chain([&crate::CAN_FRAME_KIND])
                     .find(|k| k.schema_name == schema && channel.message_encoding == crate::MESSAGE_ENCODING)
                     .ok_or_else(|| RecordingError::UnknownSchema {
                         path: path.to_path_buf(),
@@ -121,7 +124,14 @@ pub fn read_messages(
                         index,
                     });
                 };
-                if payload.len() != channel.kind.size {
+                if crate::is_can_frame(channel.kind) {
+                    crate::decode_frame(payload).map_err(|reason| RecordingError::BadFrame {
+                        path: path.to_path_buf(),
+                        topic: channel.topic.clone(),
+                        index,
+                        reason,
+                    })?;
+                } else if payload.len() != channel.kind.size {
                     return Err(RecordingError::BadSize {
                         path: path.to_path_buf(),
                         topic: channel.topic.clone(),
@@ -138,6 +148,7 @@ pub fn read_messages(
                     log_time_ns: header.log_time,
                     payload,
                     index,
+                    mcap_sequence: header.sequence,
                 })?;
             }
             Record::Metadata(m) if m.name == "hydractl" => outcome.metadata.extend(m.metadata),

@@ -129,6 +129,25 @@ impl RecordingWriter {
                 want: kind.size,
             });
         };
+        self.write_encoded(channel, sequence, time_ns, payload)
+    }
+
+    /// Writes one message already encoded as its channel's CDR (without
+    /// the encapsulation header): a CAN frame ([`crate::encode_frame`]).
+    pub fn write_encoded(
+        &mut self,
+        channel: ChannelHandle,
+        sequence: u64,
+        time_ns: u64,
+        payload: &[u8],
+    ) -> Result<(), RecordingError> {
+        if channel.0 >= self.channels.len() {
+            return Err(RecordingError::MissingChannel {
+                path: self.path.clone(),
+                topic: format!("#{}", channel.0),
+                have: self.topics(),
+            });
+        }
         if self.split_due(time_ns) {
             self.next_part()?;
         }

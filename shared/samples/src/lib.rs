@@ -52,6 +52,12 @@ pub mod service {
     pub fn can_rx(interface: &str) -> String {
         format!("hydractl/can/{interface}/rx")
     }
+
+    /// The interface whose received frames `name` carries, if it is a
+    /// [`can_rx`] service.
+    pub fn can_rx_interface(name: &str) -> Option<&str> {
+        name.strip_prefix("hydractl/can/")?.strip_suffix("/rx")
+    }
 }
 
 /// Where a reading comes from: the machine, or the simulated plant. Zero,

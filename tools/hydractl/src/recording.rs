@@ -55,6 +55,14 @@ pub enum McapCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Write the recording's CAN frames as a can-utils `candump -l` log, in
+    /// the order they crossed the bus (times on the run's monotonic clock).
+    ExportCandump {
+        file: PathBuf,
+        /// The log to write [default: standard output].
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
 }
 
 /// Attaches a recorder to the run already alive under this prefix.
@@ -230,6 +238,7 @@ pub fn mcap(command: McapCommand) -> Result<()> {
             }
             crate::emit(&text)
         }
+        McapCommand::ExportCandump { file, out } => export_candump(&file, out.as_deref()),
         McapCommand::ExportCsv { file, out } => {
             let export = exported(&file)?;
             write_csv(&export.rows, &out)?;
@@ -240,6 +249,42 @@ pub fn mcap(command: McapCommand) -> Result<()> {
                 out.display()
             ))
         }
+    }
+}
+
+fn export_candump(file: &Path, out: Option<&Path>) -> Result<()> {
+    let mut frames = Vec::new();
+    let read = hydractl_recording::read_messages(file, |m| {
+        if hydractl_recording::is_can_frame(m.kind) {
+            // The reader checked every frame's encoding.
+            if let Ok(f) = hydractl_recording::decode_frame(m.payload) {
+                frames.push(f);
+            }
+        }
+        Ok(())
+    })?;
+    if let Some(why) = &read.truncated {
+        eprintln!("{}: {why}", file.display());
+    }
+    if frames.is_empty() {
+        bail!(
+            "{}: no CAN frames recorded (no can_msgs/msg/Frame channel)",
+            file.display()
+        );
+    }
+    frames.sort_by_key(|f| f.time_ns);
+    let mut log = String::new();
+    for f in &frames {
+        log += &hydractl_can::candump::line(f.time_ns, &f.interface, &f.frame);
+        log.push('\n');
+    }
+    match out {
+        Some(path) => {
+            std::fs::write(path, &log).with_context(|| format!("cannot write {}", path.display()))?;
+            eprintln!("{} frames to {}", frames.len(), path.display());
+            Ok(())
+        }
+        None => crate::emit(&log),
     }
 }
 
