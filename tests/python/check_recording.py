@@ -7,6 +7,7 @@ must for a file a killed recorder left, and prints the message count per
 channel up to where the file stops."""
 
 import json
+import math
 import sys
 
 from mcap.exceptions import McapError
@@ -17,6 +18,10 @@ from mcap_ros2.decoder import DecoderFactory
 
 
 def plain(value):
+    # JSON has no NaN (a missing PDO's reading, a valve sample answering
+    # no reading): null, as JSON.stringify writes it.
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, (bytes, bytearray)):
         return list(value)
     if isinstance(value, (list, tuple)):

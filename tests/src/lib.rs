@@ -470,3 +470,44 @@ pub fn assert_recorded_everything(
         assert!(lost.is_empty(), "{topic}: published but not recorded: {lost:?}");
     }
 }
+
+/// Reads a recording with the Python `mcap` package and its ROS 2 decoder
+/// (`tests/python`). `None` when they are not installed and not required
+/// (`HYDRACTL_REQUIRE_PYTHON_MCAP=1`, as `.ci/run` sets).
+pub fn python_view(args: &[&str], path: &Path) -> Option<serde_json::Value> {
+    let python = std::env::var("HYDRACTL_PYTHON").unwrap_or_else(|_| "python3".into());
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/check_recording.py");
+    independent_view(
+        "the Python mcap reader (install mcap and mcap-ros2-support, as .ci/run does)",
+        "HYDRACTL_REQUIRE_PYTHON_MCAP",
+        Command::new(python).arg(script).args(args).arg(path),
+    )
+}
+
+/// Reads a recording with the libraries Foxglove itself uses, `@mcap/core`
+/// and `@foxglove/rosmsg2-serialization` (`tests/js`). `None` when they are
+/// not installed and not required (`HYDRACTL_REQUIRE_JS_MCAP=1`).
+pub fn foxglove_view(path: &Path) -> Option<serde_json::Value> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("js/check_recording.mjs");
+    independent_view(
+        "Foxglove's readers (`npm ci` in tests/js, as .ci/run does)",
+        "HYDRACTL_REQUIRE_JS_MCAP",
+        Command::new("node").arg(script).arg(path),
+    )
+}
+
+fn independent_view(what: &str, required_by: &str, command: &mut Command) -> Option<serde_json::Value> {
+    let required = std::env::var(required_by).is_ok_and(|v| v == "1");
+    match command.output() {
+        Ok(out) if out.status.success() => Some(serde_json::from_slice(&out.stdout).expect("the reader's json")),
+        other => {
+            let why = match other {
+                Ok(out) => String::from_utf8_lossy(&out.stderr).into_owned(),
+                Err(e) => e.to_string(),
+            };
+            assert!(!required, "{what} failed: {why}");
+            eprintln!("SKIPPED the check by {what}: {why}");
+            None
+        }
+    }
+}

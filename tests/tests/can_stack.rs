@@ -277,3 +277,74 @@ fn the_vehicle_config_here_is_refused_naming_the_interface_and_the_reason() {
     );
     assert!(scope.live_node_names().expect("nodes").is_empty(), "nothing started");
 }
+
+#[test]
+fn the_bus_is_recorded_frame_for_frame_as_can_msgs_frame_and_exported_as_candump() {
+    let _turn = serial();
+    let scope = unique_scope("can_record");
+    let dir = scratch_dir("can_record");
+    let config = config(&dir, "can.toml", "");
+    let recording = dir.join("run.mcap");
+    let tap = BusTap::start(&scope);
+    let out = run_to_end(
+        &scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            "3",
+            "--record",
+            recording.to_str().expect("path"),
+        ],
+        Duration::from_secs(60),
+    );
+    let heard = tap.finish();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let topic = "hydractl/can/vcan0/rx";
+
+    let log = dir.join("run.log");
+    let export = hydractl_in(
+        &scope,
+        &[
+            "mcap",
+            "export-candump",
+            recording.to_str().expect("path"),
+            "--out",
+            log.to_str().expect("path"),
+        ],
+    );
+    assert!(export.status.success(), "{}", String::from_utf8_lossy(&export.stderr));
+    let logged = hydractl_can::candump::parse(&std::fs::read_to_string(&log).expect("log")).expect("a candump log");
+    assert!(logged.len() > 15_000, "{} frames in 3 s", logged.len());
+    assert!(logged.iter().all(|l| l.interface == "vcan0"));
+    // Every frame the test's own station heard while the recorder was
+    // there, in order, at the same microsecond.
+    let (first, last) = (logged[0].time_ns / 1000, logged[logged.len() - 1].time_ns / 1000);
+    let heard: Vec<(u64, Frame)> = heard
+        .into_iter()
+        .map(|(t, f)| (t / 1000, f))
+        .filter(|(t, _)| (first..=last).contains(t))
+        .collect();
+    let recorded: Vec<(u64, Frame)> = logged.iter().map(|l| (l.time_ns / 1000, l.frame)).collect();
+    assert_eq!(recorded.len(), heard.len(), "frames recorded against frames on the bus");
+    assert!(recorded == heard, "the recording is the bus, frame for frame");
+
+    for (reader, view) in [
+        ("python", python_view(&[], &recording)),
+        ("foxglove", foxglove_view(&recording)),
+    ] {
+        let Some(view) = view else { continue };
+        let channel = &view[topic];
+        assert_eq!(channel["schema"], "can_msgs/msg/Frame", "{reader}");
+        assert_eq!(channel["count"].as_u64(), Some(logged.len() as u64), "{reader}");
+        let last_frame = &channel["last"];
+        assert_eq!(last_frame["header"]["frame_id"], "vcan0", "{reader}");
+        let expected = logged[logged.len() - 1].frame;
+        assert_eq!(last_frame["id"].as_u64(), Some(u64::from(expected.id)), "{reader}");
+        assert_eq!(last_frame["dlc"].as_u64(), Some(u64::from(expected.len)), "{reader}");
+        assert_eq!(last_frame["is_extended"], false, "{reader}");
+        // The supervisor's process names are words, not arrays of numbers.
+        let names = &view["hydractl/supervisor/status"]["last"]["processes"][0]["name"];
+        assert!(names.is_string(), "{reader}: {names}");
+    }
+}

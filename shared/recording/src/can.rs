@@ -29,6 +29,7 @@ uint32 nanosec
 ",
     size: 0,
     time_offset: 8,
+    text: &[],
 };
 
 /// Whether a channel's kind is the CAN frame's.

@@ -44,6 +44,12 @@ pub enum RecordingError {
         got: usize,
         want: usize,
     },
+    #[error("{path}: `{topic}`: {source}")]
+    Cdr {
+        path: PathBuf,
+        topic: String,
+        source: hydractl_samples::cdr::CdrError,
+    },
     #[error("{path}: message {index} on `{topic}` is not a can_msgs/msg/Frame: {reason}")]
     BadFrame {
         path: PathBuf,

@@ -71,6 +71,7 @@ pub fn read_messages(
     let mut channels: HashMap<u16, ChannelEntry> = HashMap::new();
     let mut outcome = ReadOutcome::default();
     let mut footer_seen = false;
+    let mut memory = Vec::new();
     for record in records {
         let record = match record {
             Ok(r) => r,
@@ -123,6 +124,19 @@ pub fn read_messages(
                         topic: channel.topic.clone(),
                         index,
                     });
+                };
+                // A sample with text: back to its memory.
+                let payload = if channel.kind.text.is_empty() {
+                    payload
+                } else {
+                    hydractl_samples::cdr::from_cdr(channel.kind, payload, &mut memory).map_err(|source| {
+                        RecordingError::Cdr {
+                            path: path.to_path_buf(),
+                            topic: format!("{} message {index}", channel.topic),
+                            source,
+                        }
+                    })?;
+                    &memory[..]
                 };
                 if crate::is_can_frame(channel.kind) {
                     crate::decode_frame(payload).map_err(|reason| RecordingError::BadFrame {

@@ -68,6 +68,8 @@ pub struct RecordingWriter {
     /// The log time of the current file's first message.
     file_start_ns: Option<u64>,
     message: Vec<u8>,
+    /// A sample with text, encoded field by field.
+    encoded: Vec<u8>,
     messages: u64,
     bytes_in_closed_files: u64,
 }
@@ -88,6 +90,7 @@ impl RecordingWriter {
             channels: Vec::new(),
             file_start_ns: None,
             message: Vec::with_capacity(4096),
+            encoded: Vec::with_capacity(4096),
             messages: 0,
             bytes_in_closed_files: 0,
         })
@@ -104,7 +107,8 @@ impl RecordingWriter {
         Ok(ChannelHandle(self.channels.len() - 1))
     }
 
-    /// Writes one sample: its bytes as they are in memory.
+    /// Writes one sample: its bytes as they are in memory (its text as
+    /// strings, [`hydractl_samples::cdr`]).
     pub fn write_sample<T: Recordable>(&mut self, channel: ChannelHandle, sample: &T) -> Result<(), RecordingError> {
         self.write(channel, bytemuck::bytes_of(sample))
     }
@@ -129,7 +133,20 @@ impl RecordingWriter {
                 want: kind.size,
             });
         };
-        self.write_encoded(channel, sequence, time_ns, payload)
+        if kind.text.is_empty() {
+            return self.write_encoded(channel, sequence, time_ns, payload);
+        }
+        let mut encoded = std::mem::take(&mut self.encoded);
+        encoded.clear();
+        let written = hydractl_samples::cdr::to_cdr(kind, payload, &mut encoded)
+            .map_err(|source| RecordingError::Cdr {
+                path: self.path.clone(),
+                topic: self.channels[channel.0].topic.clone(),
+                source,
+            })
+            .and_then(|()| self.write_encoded(channel, sequence, time_ns, &encoded));
+        self.encoded = encoded;
+        written
     }
 
     /// Writes one message already encoded as its channel's CDR (without

@@ -12,6 +12,7 @@
 use bytemuck::{Pod, Zeroable};
 use iceoryx2::prelude::*;
 
+pub mod cdr;
 mod schema;
 pub use schema::{visit_kind, KindVisitor, Recordable, SampleKind, CDR_HEADER, KINDS, STACK_SERVICES};
 

@@ -38,6 +38,10 @@ pub struct SampleKind {
     /// Where the sample's own timestamp (CLOCK_MONOTONIC ns) sits: its
     /// stage's time, or the reading's for the plant.
     pub time_offset: usize,
+    /// Fields that are NUL-padded text in memory and `string`s in the
+    /// schema, with their size in memory: where the sample's memory is not
+    /// its CDR ([`crate::cdr`]). Empty for most samples.
+    pub text: &'static [(&'static str, usize)],
 }
 
 impl SampleKind {
@@ -128,6 +132,9 @@ pub fn visit_kind<V: KindVisitor>(type_name: &str, visitor: V) -> Option<V::Outp
 
 macro_rules! recordable {
     ($type:ty, $name:literal, $time:ident, $msg:expr) => {
+        recordable!($type, $name, $time, $msg, &[]);
+    };
+    ($type:ty, $name:literal, $time:ident, $msg:expr, $text:expr) => {
         impl Recordable for $type {
             const KIND: SampleKind = SampleKind {
                 type_name: concat!("hydractl::", $name),
@@ -135,6 +142,7 @@ macro_rules! recordable {
                 ros2msg: $msg,
                 size: size_of::<$type>(),
                 time_offset: std::mem::offset_of!($type, $time),
+                text: $text,
             };
         }
     };
@@ -183,7 +191,8 @@ recordable!(
     "uint64 seq\nuint64 stage_time_ns\nProcessStatus[12] processes\nuint32 process_count\nuint32 plant_is_simulation\n\
 ================================================================================\n\
 MSG: hydractl/ProcessStatus\n\
-uint8[16] name\nuint8[16] variant\nuint32 pid\nuint32 restarts\nuint32 healthy\nuint32 reserved\n"
+string name\nstring variant\nuint32 pid\nuint32 restarts\nuint32 healthy\nuint32 reserved\n",
+    &[("name", 16), ("variant", 16)]
 );
 recordable!(
     RecorderStatus,
@@ -207,7 +216,8 @@ recordable!(
     SupervisorEvent,
     "SupervisorEvent",
     stage_time_ns,
-    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 valve_safe_after_periods\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nuint8[16] process\nuint8[16] from\nuint8[16] to\n"
+    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 valve_safe_after_periods\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nstring process\nstring from\nstring to\n",
+    &[("process", 16), ("from", 16), ("to", 16)]
 );
 recordable!(
     BenchSample,
@@ -224,7 +234,8 @@ mod tests {
 
     /// The little-endian CDR layout of a ros2msg definition: the size of
     /// each primitive, aligned to itself; nested messages inline.
-    fn cdr_size(msg: &str) -> (usize, Vec<(String, usize)>) {
+    fn cdr_size(kind: &SampleKind) -> (usize, Vec<(String, usize)>) {
+        let msg = kind.ros2msg;
         let mut sections =
             msg.split("================================================================================\n");
         let main = sections.next().unwrap_or_default();
@@ -235,13 +246,14 @@ mod tests {
             nested.insert(name.to_owned(), body.to_owned());
         }
         let mut fields = Vec::new();
-        let offset = layout(main, &nested, 0, &mut fields);
+        let offset = layout(main, &nested, kind.text, 0, &mut fields);
         (offset, fields)
     }
 
     fn layout(
         body: &str,
         nested: &HashMap<String, String>,
+        text: &[(&str, usize)],
         mut offset: usize,
         fields: &mut Vec<(String, usize)>,
     ) -> usize {
@@ -257,6 +269,18 @@ mod tests {
                 "uint64" | "float64" => Some(8),
                 _ => None,
             };
+            // Text: bytes in memory, a string in CDR.
+            let text_len = (base == "string").then(|| {
+                text.iter()
+                    .find(|(n, _)| *n == name)
+                    .map(|(_, len)| *len)
+                    .expect("a string has its size in memory")
+            });
+            if let Some(len) = text_len {
+                fields.push((name.to_owned(), offset));
+                offset += len * count;
+                continue;
+            }
             match primitive {
                 Some(size) => {
                     offset = offset.div_ceil(size) * size;
@@ -267,7 +291,7 @@ mod tests {
                     let inner = nested.get(base).expect("nested message defined");
                     fields.push((name.to_owned(), offset));
                     for _ in 0..count {
-                        offset = layout(inner, nested, offset, &mut Vec::new());
+                        offset = layout(inner, nested, text, offset, &mut Vec::new());
                     }
                 }
             }
@@ -278,7 +302,7 @@ mod tests {
     #[test]
     fn every_schema_matches_its_type_layout_and_starts_with_a_sequence() {
         for kind in KINDS {
-            let (size, fields) = cdr_size(kind.ros2msg);
+            let (size, fields) = cdr_size(kind);
             assert_eq!(size, kind.size, "{}: CDR size against size_of", kind.schema_name);
             let (first, offset) = &fields[0];
             assert!(first.ends_with("seq") && *offset == 0, "{}", kind.schema_name);
@@ -288,11 +312,11 @@ mod tests {
 
     #[test]
     fn schema_offsets_are_the_struct_offsets() {
-        let (_, fields) = cdr_size(SensorSample::KIND.ros2msg);
+        let (_, fields) = cdr_size(&SensorSample::KIND);
         let at = |name: &str| fields.iter().find(|(n, _)| n == name).map(|(_, o)| *o);
         assert_eq!(at("torque"), Some(std::mem::offset_of!(SensorSample, torque)));
         assert_eq!(at("valid"), Some(std::mem::offset_of!(SensorSample, valid)));
-        let (_, fields) = cdr_size(SupervisorStatus::KIND.ros2msg);
+        let (_, fields) = cdr_size(&SupervisorStatus::KIND);
         let at = |name: &str| fields.iter().find(|(n, _)| n == name).map(|(_, o)| *o);
         assert_eq!(
             at("process_count"),
