@@ -39,7 +39,8 @@ impl CanSensors {
         }
         let port = open_port(bus, profile, &filters).context("the sensors' CAN bus")?;
         for start in master.start_frames() {
-            port.send(&start).context("starting the sensor nodes (NMT)")?;
+            port.send(&start)
+                .context("starting the sensor nodes (heartbeat by SDO, NMT)")?;
         }
         Ok(Self {
             port,

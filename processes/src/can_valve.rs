@@ -56,8 +56,10 @@ impl CanValve {
             Filter::exact(cob_id::heartbeat(node)),
         ];
         let port = open_port(bus, profile, &filters).context("the valve's CAN bus")?;
-        port.send(&master.start_frame())
-            .context("starting the valve node (NMT)")?;
+        for frame in master.start_frames() {
+            port.send(&frame)
+                .context("starting the valve node (heartbeat by SDO, NMT)")?;
+        }
         Ok(Self {
             port,
             master,

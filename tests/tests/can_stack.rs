@@ -116,7 +116,10 @@ fn the_stack_on_the_virtual_can_bus_tracks_as_the_shared_memory_stack_does() {
     let scope = unique_scope("can_track");
     let can = run(&scope, &config(&dir, "can.toml", ""));
     eprintln!("shared memory: {shm}\nCAN: {can}");
-    assert_eq!(shm["plant"], "machine", "the reference run on the stand-in, not fallen back");
+    assert_eq!(
+        shm["plant"], "machine",
+        "the reference run on the stand-in, not fallen back"
+    );
     assert_eq!(can["plant"], "machine", "the whole run on the machine's devices");
     let cycles = can["cycles"].as_u64().expect("cycles");
     assert!(cycles >= 9000, "{cycles} cycles in 10 s");

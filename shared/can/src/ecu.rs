@@ -97,6 +97,59 @@ impl NodeCore {
     fn operational(&self) -> bool {
         self.state == NmtState::Operational
     }
+
+    /// The communication objects every node serves by SDO: the heartbeat
+    /// producer time (0x1017), which the master sets at boot. `None` for
+    /// any other object.
+    fn answer_sdo(&mut self, request: SdoRequest) -> Option<SdoResponse> {
+        match request {
+            SdoRequest::Download {
+                index: HEARTBEAT_PRODUCER,
+                sub: 0,
+                value,
+                ..
+            } => {
+                self.heartbeat_ns = u64::from(u16::from_le_bytes([value[0], value[1]])) * 1_000_000;
+                // The new period counts from now: the next beat at once.
+                self.next_heartbeat_ns = 0;
+                Some(SdoResponse::Downloaded {
+                    index: HEARTBEAT_PRODUCER,
+                    sub: 0,
+                })
+            }
+            SdoRequest::Upload {
+                index: HEARTBEAT_PRODUCER,
+                sub: 0,
+            } => Some(SdoResponse::Uploaded {
+                index: HEARTBEAT_PRODUCER,
+                sub: 0,
+                value: ((self.heartbeat_ns / 1_000_000) as u32).to_le_bytes(),
+                len: 2,
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// The heartbeat producer time a node boots with until the master sets
+/// its own (the PVED-CC's default): longer than the master's consumer
+/// timeout, so a master that forgets to set it finds every node lost.
+pub const FACTORY_HEARTBEAT_MS: u16 = 1000;
+
+/// Object 0x1017: the heartbeat producer time, ms (UNSIGNED16).
+pub const HEARTBEAT_PRODUCER: u16 = 0x1017;
+/// SDO abort: the object does not exist in the object dictionary.
+const NO_SUCH_OBJECT: u32 = 0x0602_0000;
+
+/// The master's SDO download of a node's heartbeat producer time.
+pub fn set_heartbeat(node: NodeId, heartbeat_ms: u16) -> Frame {
+    SdoRequest::Download {
+        index: HEARTBEAT_PRODUCER,
+        sub: 0,
+        value: [heartbeat_ms.to_le_bytes()[0], heartbeat_ms.to_le_bytes()[1], 0, 0],
+        len: 2,
+    }
+    .to_frame(node)
 }
 
 /// A CiA 408 proportional valve (as the PVED-CC behaves).
@@ -121,7 +174,7 @@ pub struct ValveEcu {
 impl ValveEcu {
     pub fn new(profile: &Profile) -> Self {
         Self {
-            core: NodeCore::new(profile.valve, profile.heartbeat_ms),
+            core: NodeCore::new(profile.valve, FACTORY_HEARTBEAT_MS),
             dsm: StateMachine::power_up(),
             profile_set_point: profile.valve_set_point,
             profile_control: profile.valve_control,
@@ -260,6 +313,9 @@ impl ValveEcu {
     }
 
     fn answer_sdo(&mut self, request: SdoRequest, now_ns: u64) -> SdoResponse {
+        if let Some(answer) = self.core.answer_sdo(request) {
+            return answer;
+        }
         match request {
             SdoRequest::Upload { index, sub } => {
                 let value: Option<u32> = match (index, sub) {
@@ -279,7 +335,7 @@ impl ValveEcu {
                     None => SdoResponse::Aborted {
                         index,
                         sub,
-                        code: 0x0602_0000,
+                        code: NO_SUCH_OBJECT,
                     },
                 }
             }
@@ -295,7 +351,7 @@ impl ValveEcu {
                 _ => SdoResponse::Aborted {
                     index,
                     sub,
-                    code: 0x0602_0000,
+                    code: NO_SUCH_OBJECT,
                 },
             },
         }
@@ -315,7 +371,7 @@ pub struct SensorEcu {
 impl SensorEcu {
     pub fn encoder(profile: &Profile) -> Self {
         Self {
-            core: NodeCore::new(profile.encoder, profile.heartbeat_ms),
+            core: NodeCore::new(profile.encoder, FACTORY_HEARTBEAT_MS),
             pdo: profile.encoder_position,
             sync_cob_id: profile.sync_cob_id,
             raw: 0,
@@ -324,7 +380,7 @@ impl SensorEcu {
 
     pub fn transducer(profile: &Profile, channel: &PressureChannel) -> Self {
         Self {
-            core: NodeCore::new(channel.node, profile.heartbeat_ms),
+            core: NodeCore::new(channel.node, FACTORY_HEARTBEAT_MS),
             pdo: channel.value,
             sync_cob_id: profile.sync_cob_id,
             raw: 0,
@@ -350,6 +406,21 @@ impl SensorEcu {
             return;
         }
         if self.core.on_nmt(frame).is_some() {
+            return;
+        }
+        if frame.id == u32::from(cob_id::sdo_request(self.core.node)) {
+            if let Ok((_, request)) = SdoRequest::decode(frame) {
+                let answer = self.core.answer_sdo(request).unwrap_or(SdoResponse::Aborted {
+                    index: match request {
+                        SdoRequest::Download { index, .. } | SdoRequest::Upload { index, .. } => index,
+                    },
+                    sub: match request {
+                        SdoRequest::Download { sub, .. } | SdoRequest::Upload { sub, .. } => sub,
+                    },
+                    code: NO_SUCH_OBJECT,
+                });
+                out.push(answer.to_frame(self.core.node));
+            }
             return;
         }
         if canopen::is_sync(frame, self.sync_cob_id) && self.core.operational() {
@@ -614,6 +685,8 @@ mod tests {
 
         let mut watch = HeartbeatWatch::new(0x20, 300);
         let mut out = Outbox::default();
+        encoder.on_frame(&set_heartbeat(0x20, 100), &mut out);
+        let mut out = Outbox::default();
         encoder.tick(0, &mut out);
         encoder.tick(100 * MS, &mut out);
         for f in out.frames() {
@@ -626,5 +699,20 @@ mod tests {
             !HeartbeatWatch::new(0x30, 300).lost(u64::MAX),
             "never heard is not lost"
         );
+        // The master sets the producer time at boot (a PVED-CC ships with
+        // 1000 ms): the node answers and beats at the new period.
+        let mut out = Outbox::default();
+        encoder.on_frame(&set_heartbeat(0x20, 50), &mut out);
+        assert_eq!(
+            SdoResponse::decode(&out.frames()[0]).map(|(_, r)| r),
+            Ok(SdoResponse::Downloaded {
+                index: HEARTBEAT_PRODUCER,
+                sub: 0
+            })
+        );
+        let mut out = Outbox::default();
+        encoder.tick(150 * MS, &mut out);
+        encoder.tick(170 * MS, &mut out);
+        assert_eq!(out.frames().len(), 1, "one beat at 150 ms, the next due at 200 ms");
     }
 }

@@ -11,7 +11,7 @@
 //!   valve's status TPDO, EMCYs and heartbeat.
 
 use crate::canopen::{self, cob_id, Emergency, NmtCommand, NmtState, NodeId};
-use crate::ecu::HeartbeatWatch;
+use crate::ecu::{set_heartbeat, HeartbeatWatch};
 use crate::profile::{Pdo, PressureChannel, Profile};
 use crate::valve::{self, DeviceState};
 use crate::{CanError, Frame};
@@ -50,6 +50,7 @@ pub struct SensorMaster {
     pressure: [PressureChannel; 2],
     /// Encoder, transducer A, transducer B.
     heartbeats: [HeartbeatWatch; 3],
+    heartbeat_ms: u16,
     values: SensorValues,
     /// Bit per value gathered this period: encoder, A, B.
     gathered: u8,
@@ -72,6 +73,7 @@ impl SensorMaster {
                 watch(profile.pressure[0].node),
                 watch(profile.pressure[1].node),
             ],
+            heartbeat_ms: profile.heartbeat_ms,
             values: SensorValues::MISSING,
             gathered: 0,
             bad_pdos: 0,
@@ -99,10 +101,20 @@ impl SensorMaster {
         (self.encoder.cob_id & 0x7F) as NodeId
     }
 
-    /// NMT start for each sensor node (not for all nodes: the valve is
-    /// the valve process's to start).
-    pub fn start_frames(&self) -> [Frame; 3] {
-        self.nodes().map(|node| canopen::nmt(NmtCommand::Start, node))
+    /// What brings each sensor node up: its heartbeat producer time set by
+    /// SDO (a device ships with its own, the PVED-CC with 1000 ms: longer
+    /// than the consumer's timeout), then NMT start (not for all nodes: the
+    /// valve is the valve process's to start).
+    pub fn start_frames(&self) -> [Frame; 6] {
+        let [a, b, c] = self.nodes();
+        [
+            set_heartbeat(a, self.heartbeat_ms),
+            set_heartbeat(b, self.heartbeat_ms),
+            set_heartbeat(c, self.heartbeat_ms),
+            canopen::nmt(NmtCommand::Start, a),
+            canopen::nmt(NmtCommand::Start, b),
+            canopen::nmt(NmtCommand::Start, c),
+        ]
     }
 
     /// A new period: forgets the last one's values and returns its SYNC.
@@ -204,6 +216,7 @@ pub struct ValveMaster {
     status: Pdo,
     status_word_at: (usize, u8),
     heartbeat: HeartbeatWatch,
+    heartbeat_ms: u16,
     state: Option<DeviceState>,
     was_ready: bool,
     actual: f64,
@@ -222,6 +235,7 @@ impl ValveMaster {
             status: profile.valve_status,
             status_word_at: profile.valve_status_word_at,
             heartbeat: HeartbeatWatch::new(profile.valve, profile.heartbeat_timeout_ms),
+            heartbeat_ms: profile.heartbeat_ms,
             state: None,
             was_ready: false,
             actual: f64::NAN,
@@ -236,8 +250,12 @@ impl ValveMaster {
         self.node
     }
 
-    pub fn start_frame(&self) -> Frame {
-        canopen::nmt(NmtCommand::Start, self.node)
+    /// Its heartbeat producer time by SDO, then NMT start.
+    pub fn start_frames(&self) -> [Frame; 2] {
+        [
+            set_heartbeat(self.node, self.heartbeat_ms),
+            canopen::nmt(NmtCommand::Start, self.node),
+        ]
     }
 
     pub fn on_frame(&mut self, frame: &Frame, now_ns: u64) -> Result<ValveFrame, CanError> {
@@ -455,7 +473,7 @@ mod tests {
                 master.on_frame(f, now).expect("valve frame");
             }
         };
-        let start = [master.start_frame()];
+        let start = master.start_frames();
         period(&mut master, &mut ecu, &start, now);
         for _ in 0..6 {
             if master.active() {
