@@ -352,3 +352,53 @@ fn the_bus_is_recorded_frame_for_frame_as_can_msgs_frame_and_exported_as_candump
         assert!(names.is_string(), "{reader}: {names}");
     }
 }
+
+#[test]
+fn a_late_encoder_pdo_makes_the_reading_invalid_and_is_never_waited_for() {
+    let _turn = serial();
+    let scope = unique_scope("can_late");
+    let dir = scratch_dir("can_late");
+    // From 3 s to 4 s of the wire's life the encoder's TPDO waits 650 µs
+    // before it contends: it crosses after the master's 800 µs deadline
+    // but before the next SYNC. Five transmissions are destroyed too.
+    let config = config(
+        &dir,
+        "can.toml",
+        "[can.faults]\nafter_s = 3.0\nuntil_s = 4.0\ndelay_cob_id = 0x1A0\ndelay_us = 650\nerror_frames = 5\n",
+    );
+    let summary_path = dir.join("summary.json");
+    let out = run_to_end(
+        &scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            "6",
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary = read_json(&summary_path);
+    let c = &summary["can"];
+    let late = c["late_pdos"].as_u64().expect("late");
+    // Most of the second's PDOs; one that an ECU answered late enough to
+    // cross after the next SYNC is taken as that SYNC's (synchronous PDOs
+    // carry no SYNC counter), so not all of them.
+    assert!(
+        (200..=1200).contains(&late),
+        "{late} late PDOs in a second of delay: {summary}"
+    );
+    assert!(c["error_frames"].as_u64().expect("error frames") >= 5, "{summary}");
+    assert_eq!(c["emcy"], 0, "the set point kept coming: {summary}");
+    let invalid = summary["valve_fault_cycles"].as_u64().expect("faults");
+    assert!(
+        invalid >= late / 2,
+        "the valve neutral for the invalid readings: {invalid}"
+    );
+    // Never waited for past the period: the loop kept its rate.
+    let cycles = summary["cycles"].as_u64().expect("cycles");
+    assert!(cycles >= 5500, "{cycles} cycles in 6 s");
+    assert_eq!(summary["plant"], "machine", "a late PDO is not a lost machine");
+}

@@ -2,7 +2,9 @@
 //! on `hydractl/can/<interface>/tx`, lets the lowest ID win when the bus
 //! frees, holds each for its bits at the configured bitrate, and delivers
 //! it to every station on `hydractl/can/<interface>/rx` when its last bit
-//! has crossed. The config's `[can]` table names the bus and its bitrate.
+//! has crossed. The config's `[can]` table names the bus and its bitrate,
+//! and `[can.faults]` what the wire does wrong and when (a COB-ID's frames
+//! delayed, transmissions destroyed by error frames), to try the stack.
 
 use std::time::{Duration, Instant};
 
@@ -23,6 +25,8 @@ fn main() -> Result<()> {
     let rx: Outlet<CanFrameSample> =
         Outlet::open(&started.bus, &service::can_rx(&can.interface)).context("the bus's receive side")?;
     let mut wire = Wire::new(can.bitrate);
+    let faults = can.faults.clone();
+    let mut faults_on = false;
     // The service keeps each station's last frame for late joiners: one
     // from before this wire started was sent to a wire that is gone.
     let started_ns = clock::now_ns();
@@ -44,6 +48,17 @@ fn main() -> Result<()> {
         |_| {
             hydractl_bus::guarded(&mut failure, || -> Result<()> {
                 let mut wire = wire_cell.borrow_mut();
+                if let Some(f) = &faults {
+                    let since_s = clock::now_ns().saturating_sub(started_ns) as f64 * 1e-9;
+                    let due = since_s >= f.after_s && f.until_s.is_none_or(|u| since_s < u);
+                    if due && !faults_on {
+                        wire.delay(f.delay_cob_id.map(|id| (id, u64::from(f.delay_us) * 1000)));
+                        wire.corrupt(f.error_frames);
+                    } else if !due && faults_on {
+                        wire.delay(None);
+                    }
+                    faults_on = due;
+                }
                 while let Some(sample) = tx.next()? {
                     if sample.time_ns >= started_ns {
                         wire.submit(sample_frame(&sample), sample.station, sample.time_ns);

@@ -47,6 +47,27 @@ pub struct CanConfig {
     pub encoder: EncoderNode,
     pub pressure_a: PressureNode,
     pub pressure_b: PressureNode,
+    /// Faults the virtual bus's wire injects, for trying the stack's
+    /// reactions; absent on a real bus.
+    pub faults: Option<WireFaults>,
+}
+
+/// What the virtual bus's wire does wrong, from `after_s` (after the wire
+/// starts) until `until_s`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WireFaults {
+    pub after_s: f64,
+    #[serde(default)]
+    pub until_s: Option<f64>,
+    /// Frames with this COB-ID wait `delay_us` before they contend.
+    #[serde(default)]
+    pub delay_cob_id: Option<u16>,
+    #[serde(default)]
+    pub delay_us: u32,
+    /// Transmissions destroyed by an error frame (and sent again) at `after_s`.
+    #[serde(default)]
+    pub error_frames: u32,
 }
 
 impl Default for CanConfig {
@@ -64,6 +85,7 @@ impl Default for CanConfig {
             encoder: EncoderNode::default(),
             pressure_a: PressureNode::with_node(0x30),
             pressure_b: PressureNode::with_node(0x31),
+            faults: None,
         }
     }
 }
@@ -282,6 +304,18 @@ impl CanConfig {
                 "",
                 format!("bitrate = {}: classic CAN runs at 10 kbit/s to 1 Mbit/s", self.bitrate),
             ));
+        }
+        if let Some(f) = &self.faults {
+            let until_ok = f.until_s.is_none_or(|u| u.is_finite() && u > f.after_s);
+            if !(f.after_s.is_finite() && f.after_s >= 0.0 && until_ok && f.delay_us <= 1_000_000) {
+                return Err(error(
+                    ".faults",
+                    format!(
+                        "after_s = {}, until_s = {:?}, delay_us = {}: after_s at least 0, until_s after it, a delay of at most 1 s",
+                        f.after_s, f.until_s, f.delay_us
+                    ),
+                ));
+            }
         }
         if !(self.max_bus_load > 0.0 && self.max_bus_load <= 1.0) {
             return Err(error(

@@ -1,5 +1,7 @@
 //! What a listener on the bus makes of its traffic: load, frames per
-//! period, the period's PDOs that came late or not at all, EMCYs. Fed
+//! period, the period's PDOs that did not come before the next SYNC,
+//! EMCYs. (Whether a PDO came in time for its reading is the master's
+//! judgement, on its own clock: the readings say it.) Fed
 //! every frame with the time its last bit crossed; the bus time of each
 //! frame is counted bit for bit ([`crate::timing::frame_bits`]).
 
@@ -15,7 +17,6 @@ const PERIOD_PDOS: usize = 4;
 pub struct BusStats {
     bitrate: u32,
     sync_cob_id: u16,
-    pdo_deadline_ns: u64,
     pdos: [u16; PERIOD_PDOS],
     frames: u64,
     bits: u64,
@@ -25,7 +26,6 @@ pub struct BusStats {
     /// The current period: its SYNC's time and the PDOs seen since.
     sync_ns: Option<u64>,
     seen: [bool; PERIOD_PDOS],
-    late_pdos: u64,
     lost_frames: u64,
     emcys: u64,
     error_frames: u64,
@@ -36,7 +36,6 @@ pub struct BusStats {
 pub struct BusFigures {
     pub load_percent: f64,
     pub frames_per_period: f64,
-    pub late_pdos: u64,
     pub lost_frames: u64,
     pub error_frames: u64,
     pub emcy: u64,
@@ -47,7 +46,6 @@ impl BusStats {
         Self {
             bitrate: profile.bitrate,
             sync_cob_id: profile.sync_cob_id,
-            pdo_deadline_ns: u64::from(profile.pdo_deadline_us) * 1000,
             pdos: [
                 profile.encoder_position.cob_id,
                 profile.pressure[0].value.cob_id,
@@ -61,7 +59,6 @@ impl BusStats {
             syncs: 0,
             sync_ns: None,
             seen: [false; PERIOD_PDOS],
-            late_pdos: 0,
             lost_frames: 0,
             emcys: 0,
             error_frames: 0,
@@ -89,10 +86,7 @@ impl BusStats {
             .iter()
             .position(|&id| u32::from(id) == frame.id && !frame.is_extended())
         {
-            if let Some(sync_ns) = self.sync_ns {
-                if !self.seen[i] && end_ns.saturating_sub(sync_ns) > self.pdo_deadline_ns {
-                    self.late_pdos += 1;
-                }
+            if self.sync_ns.is_some() {
                 self.seen[i] = true;
             }
             return;
@@ -129,7 +123,6 @@ impl BusStats {
             } else {
                 0.0
             },
-            late_pdos: self.late_pdos,
             lost_frames: self.lost_frames,
             error_frames: self.error_frames,
             emcy: self.emcys,
@@ -143,13 +136,13 @@ mod tests {
     use crate::profile::CanConfig;
 
     #[test]
-    fn load_late_lost_and_emcys_are_counted_per_period() {
+    fn load_lost_and_emcys_are_counted_per_period() {
         let profile = CanConfig::default().resolve().expect("defaults");
         let mut stats = BusStats::new(&profile);
         let sync = canopen::sync(profile.sync_cob_id, None);
         let pdo = |id: u16| Frame::new(id, &[0; 4]).expect("pdo");
         let us = 1000;
-        // Period 1: all four, the valve's late.
+        // Period 1: all four.
         stats.on_frame(&sync, 0);
         for (i, id) in [0x1A0, 0x1B0, 0x1B1].into_iter().enumerate() {
             stats.on_frame(&pdo(id), (100 + 100 * i as u64) * us);
@@ -165,7 +158,6 @@ mod tests {
         stats.on_frame(&Frame::error(0x04, [0; 8]), 1500 * us);
         stats.on_frame(&sync, 2000 * us);
         let f = stats.figures();
-        assert_eq!(f.late_pdos, 1);
         assert_eq!(f.lost_frames, 1);
         assert_eq!(f.emcy, 1);
         assert_eq!(f.error_frames, 1);

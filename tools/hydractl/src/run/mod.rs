@@ -110,7 +110,8 @@ struct CanSummary {
     load_percent: f64,
     /// Frames per SYNC.
     frames_per_period: f64,
-    /// A period's TPDO that came after `[can] pdo_deadline_us`.
+    /// A sensor value the machine did not have at `[can] pdo_deadline_us`
+    /// after its SYNC: the reading went out with it missing (invalid).
     late_pdos: u64,
     /// A period's TPDO that never came before the next SYNC.
     lost_frames: u64,
@@ -376,19 +377,27 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     // Each plant counts its own late commands.
     let mut late_by_source = [0u64; 2];
     let mut failure = None;
+    let mut late_pdos = 0u64;
     let mut can_watch = match &config.can {
         Some(can) => {
             let profile = can.resolve()?;
             let port = hydractl_bus::can::open_port(&bus, &profile, &[])?;
-            Some((port, hydractl_can::stats::BusStats::new(&profile), profile))
+            // Every reading, for the machine's PDOs that were not there in time.
+            let readings: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 256)?;
+            Some((port, hydractl_can::stats::BusStats::new(&profile), profile, readings))
         }
         None => None,
     };
     let exit = run_loop(&[], Some(Duration::from_millis(10)), &bus, |_| {
         let mut step = || -> Result<Flow> {
-            if let Some((port, stats, _)) = &mut can_watch {
+            if let Some((port, stats, _, machine_readings)) = &mut can_watch {
                 while let Some(received) = port.receive()? {
                     stats.on_frame(&received.frame, received.time_ns);
+                }
+                while let Some(r) = machine_readings.next()? {
+                    if r.source == hydractl_samples::source::MACHINE {
+                        late_pdos += [r.angle, r.p_a, r.p_b].iter().filter(|v| v.is_nan()).count() as u64;
+                    }
                 }
             }
             while let Some(v) = valve.next()? {
@@ -589,14 +598,14 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
         plant: if on_simulation { "simulation" } else { "machine" },
         plant_switches,
         recording: None,
-        can: can_watch.map(|(port, stats, profile)| {
+        can: can_watch.map(|(port, stats, profile, _)| {
             let f = stats.figures();
             CanSummary {
                 bus: profile.interface.clone(),
                 bitrate: profile.bitrate,
                 load_percent: f.load_percent,
                 frames_per_period: f.frames_per_period,
-                late_pdos: f.late_pdos,
+                late_pdos,
                 lost_frames: f.lost_frames,
                 // SocketCAN counts the controller's error frames itself.
                 error_frames: f.error_frames.max(port.error_frames()),
