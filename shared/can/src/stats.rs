@@ -18,6 +18,8 @@ pub struct BusStats {
     bitrate: u32,
     sync_cob_id: u16,
     pdos: [u16; PERIOD_PDOS],
+    /// Each one's length by its mapping.
+    pdo_lens: [u8; PERIOD_PDOS],
     frames: u64,
     bits: u64,
     first_ns: Option<u64>,
@@ -27,6 +29,7 @@ pub struct BusStats {
     sync_ns: Option<u64>,
     seen: [bool; PERIOD_PDOS],
     lost_frames: u64,
+    malformed_pdos: u64,
     emcys: u64,
     error_frames: u64,
 }
@@ -37,6 +40,9 @@ pub struct BusFigures {
     pub load_percent: f64,
     pub frames_per_period: f64,
     pub lost_frames: u64,
+    /// A period's PDO of another length than its mapping's: refused by
+    /// its receiver (CiA 301), so also lost.
+    pub malformed_pdos: u64,
     pub error_frames: u64,
     pub emcy: u64,
 }
@@ -52,6 +58,13 @@ impl BusStats {
                 profile.pressure[1].value.cob_id,
                 profile.valve_status.cob_id,
             ],
+            pdo_lens: [
+                profile.encoder_position.mapping.len() as u8,
+                profile.pressure[0].value.mapping.len() as u8,
+                profile.pressure[1].value.mapping.len() as u8,
+                profile.valve_status.mapping.len() as u8,
+            ],
+            malformed_pdos: 0,
             frames: 0,
             bits: 0,
             first_ns: None,
@@ -86,7 +99,9 @@ impl BusStats {
             .iter()
             .position(|&id| u32::from(id) == frame.id && !frame.is_extended())
         {
-            if self.sync_ns.is_some() {
+            if frame.len != self.pdo_lens[i] || frame.is_remote() {
+                self.malformed_pdos += 1;
+            } else if self.sync_ns.is_some() {
                 self.seen[i] = true;
             }
             return;
@@ -124,6 +139,7 @@ impl BusStats {
                 0.0
             },
             lost_frames: self.lost_frames,
+            malformed_pdos: self.malformed_pdos,
             error_frames: self.error_frames,
             emcy: self.emcys,
         }
@@ -140,7 +156,8 @@ mod tests {
         let profile = CanConfig::default().resolve().expect("defaults");
         let mut stats = BusStats::new(&profile);
         let sync = canopen::sync(profile.sync_cob_id, None);
-        let pdo = |id: u16| Frame::new(id, &[0; 4]).expect("pdo");
+        // As the default mapping has them: the transducers' INT16, 2 bytes.
+        let pdo = |id: u16| Frame::new(id, &[0; 4][..if id == 0x1B0 || id == 0x1B1 { 2 } else { 4 }]).expect("pdo");
         let us = 1000;
         // Period 1: all four.
         stats.on_frame(&sync, 0);
@@ -151,6 +168,8 @@ mod tests {
         // Period 2: the encoder's lost, an EMCY, an error frame.
         stats.on_frame(&sync, 1000 * us);
         stats.on_frame(&pdo(0x1B0), 1100 * us);
+        // The encoder's, garbled to two bytes: refused, and lost.
+        stats.on_frame(&Frame::new(0x1A0, &[1, 2]).expect("short"), 1150 * us);
         stats.on_frame(&pdo(0x1B1), 1200 * us);
         stats.on_frame(&pdo(0x190), 1300 * us);
         let emcy = Emergency::new(canopen::emcy_code::VALVE_RPDO_TIMEOUT, 0x11).to_frame(0x10);
@@ -159,9 +178,10 @@ mod tests {
         stats.on_frame(&sync, 2000 * us);
         let f = stats.figures();
         assert_eq!(f.lost_frames, 1);
+        assert_eq!(f.malformed_pdos, 1);
         assert_eq!(f.emcy, 1);
         assert_eq!(f.error_frames, 1);
-        assert!((f.frames_per_period - 11.0 / 3.0).abs() < 1e-9, "{f:?}");
+        assert!((f.frames_per_period - 12.0 / 3.0).abs() < 1e-9, "{f:?}");
         assert!(f.load_percent > 10.0 && f.load_percent < 100.0, "{f:?}");
     }
 }

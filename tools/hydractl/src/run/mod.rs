@@ -115,6 +115,8 @@ struct CanSummary {
     late_pdos: u64,
     /// A period's TPDO that never came before the next SYNC.
     lost_frames: u64,
+    /// A period's TPDO of another length than its mapping's (refused).
+    malformed_pdos: u64,
     error_frames: u64,
     emcy: u64,
 }
@@ -607,6 +609,7 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                 frames_per_period: f.frames_per_period,
                 late_pdos,
                 lost_frames: f.lost_frames,
+                malformed_pdos: f.malformed_pdos,
                 // SocketCAN counts the controller's error frames itself.
                 error_frames: f.error_frames.max(port.error_frames()),
                 emcy: f.emcy,
