@@ -144,6 +144,26 @@ impl SummarizedRun {
     }
 }
 
+/// `hydractl run --config CONFIG --duration S --summary-json DIR/summary.json`
+/// to its end (within a minute more), which must succeed; its summary.
+pub fn run_config_for(scope: &RunScope, dir: &Path, config: &Path, duration_s: &str) -> serde_json::Value {
+    let summary = dir.join("summary.json");
+    let out = run_to_end(
+        scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            duration_s,
+            "--summary-json",
+            summary.to_str().expect("path"),
+        ],
+        Duration::from_secs(60) + Duration::from_secs_f64(duration_s.parse().expect("seconds")),
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    read_json(&summary)
+}
+
 /// Runs `hydractl run` to its end, or fails the test after `timeout`.
 pub fn run_to_end(scope: &RunScope, args: &[&str], timeout: Duration) -> Output {
     let mut guard = RunGuard(

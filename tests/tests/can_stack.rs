@@ -92,29 +92,12 @@ fn rms_of(summary: &serde_json::Value) -> f64 {
 fn the_stack_on_the_virtual_can_bus_tracks_as_the_shared_memory_stack_does() {
     let _turn = serial();
     let dir = scratch_dir("can_tracking");
-    let run = |scope: &RunScope, config: &Path| -> serde_json::Value {
-        let summary = dir.join("summary.json");
-        let out = run_to_end(
-            scope,
-            &[
-                "--config",
-                config.to_str().expect("path"),
-                "--duration",
-                "10",
-                "--summary-json",
-                summary.to_str().expect("path"),
-            ],
-            Duration::from_secs(60),
-        );
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        read_json(&summary)
-    };
     let shm = {
         let scope = unique_scope("can_shm");
-        run(&scope, &config(&dir, "machine.toml", ""))
+        run_config_for(&scope, &dir, &config(&dir, "machine.toml", ""), "10")
     };
     let scope = unique_scope("can_track");
-    let can = run(&scope, &config(&dir, "can.toml", ""));
+    let can = run_config_for(&scope, &dir, &config(&dir, "can.toml", ""), "10");
     eprintln!("shared memory: {shm}\nCAN: {can}");
     assert_eq!(
         shm["plant"], "machine",
@@ -217,23 +200,9 @@ fn a_silent_encoder_is_a_lost_machine_and_the_valve_is_left_neutral() {
     let scope = unique_scope("can_encoder_lost");
     let dir = scratch_dir("can_encoder_lost");
     let config = config(&dir, "can.toml", "[machine.silent_node]\nnode = 0x20\nafter_s = 4.0\n");
-    let summary_path = dir.join("summary.json");
     let tap = BusTap::start(&scope);
-    let out = run_to_end(
-        &scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            "8",
-            "--summary-json",
-            summary_path.to_str().expect("path"),
-        ],
-        Duration::from_secs(60),
-    );
+    let summary = run_config_for(&scope, &dir, &config, "8");
     let frames = tap.finish();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let summary = read_json(&summary_path);
     assert_eq!(summary["plant"], "simulation", "{summary}");
     let switch = &summary["plant_switches"][0];
     assert_eq!(switch["from"], "machine");
@@ -366,21 +335,7 @@ fn a_late_encoder_pdo_makes_the_reading_invalid_and_is_never_waited_for() {
         "can.toml",
         "[can.faults]\nafter_s = 3.0\nuntil_s = 4.0\ndelay_cob_id = 0x1A0\ndelay_us = 650\nerror_frames = 5\n",
     );
-    let summary_path = dir.join("summary.json");
-    let out = run_to_end(
-        &scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            "6",
-            "--summary-json",
-            summary_path.to_str().expect("path"),
-        ],
-        Duration::from_secs(60),
-    );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let summary = read_json(&summary_path);
+    let summary = run_config_for(&scope, &dir, &config, "6");
     let c = &summary["can"];
     let late = c["late_pdos"].as_u64().expect("late");
     // Most of the second's PDOs; one that an ECU answered late enough to
