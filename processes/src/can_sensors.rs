@@ -14,6 +14,7 @@ use anyhow::{Context, Result};
 use hydractl_bus::can::{open_port, CanPort, Filter};
 use hydractl_bus::{clock, wait_input, Bus};
 use hydractl_can::canopen::{self, cob_id, NmtCommand, NmtState, NodeId};
+use hydractl_can::ecu::set_heartbeat;
 use hydractl_can::master::{SensorMaster, SensorValues};
 use hydractl_can::profile::Profile;
 
@@ -21,6 +22,7 @@ pub struct CanSensors {
     port: Box<dyn CanPort>,
     master: SensorMaster,
     deadline: Duration,
+    heartbeat_ms: u16,
     /// Periods with a PDO missing at the deadline.
     pub late_periods: u64,
     /// PDOs refused (wrong length, a value out of the type's range).
@@ -46,6 +48,7 @@ impl CanSensors {
             port,
             master,
             deadline: Duration::from_micros(u64::from(profile.pdo_deadline_us)),
+            heartbeat_ms: profile.heartbeat_ms,
             late_periods: 0,
             bad_frames: 0,
         })
@@ -57,13 +60,13 @@ impl CanSensors {
     pub fn acquire(&mut self) -> Result<(SensorValues, u64)> {
         // What came since the last period: heartbeats, and PDOs too late
         // for it (they count for nothing now).
-        self.drain()?;
+        self.drain(u64::MAX)?;
         let sync = self.master.sync();
         let sync_time_ns = clock::now_ns();
         self.port.send(&sync).context("sending SYNC")?;
         let deadline = Instant::now() + self.deadline;
         loop {
-            self.drain()?;
+            self.drain(sync_time_ns)?;
             if self.master.complete() {
                 break;
             }
@@ -77,17 +80,26 @@ impl CanSensors {
         Ok((self.master.values(), sync_time_ns))
     }
 
-    fn drain(&mut self) -> Result<()> {
+    /// Takes what waits: heartbeats always, values only from frames that
+    /// crossed the bus after `values_since_ns` (this period's SYNC).
+    fn drain(&mut self, values_since_ns: u64) -> Result<()> {
         while let Some(received) = self.port.receive()? {
+            let heartbeat = canopen::decode_heartbeat(&received.frame).ok();
+            if heartbeat.is_none() && received.time_ns < values_since_ns {
+                continue;
+            }
             match self.master.on_frame(&received.frame, received.time_ns) {
                 Ok(_) => {}
-                // Counted and published with the machine's readings; the
-                // value stays missing.
+                // Counted; the value stays missing.
                 Err(_) => self.bad_frames += 1,
             }
-            // A node that rebooted or was stopped is started again.
-            if let Ok((node, state)) = canopen::decode_heartbeat(&received.frame) {
+            // A node that rebooted, was stopped or missed its start gets its
+            // heartbeat time and its start again.
+            if let Some((node, state)) = heartbeat {
                 if state != NmtState::Operational && self.master.nodes().contains(&node) {
+                    self.port
+                        .send(&set_heartbeat(node, self.heartbeat_ms))
+                        .context("setting a sensor node's heartbeat (SDO)")?;
                     self.port
                         .send(&canopen::nmt(NmtCommand::Start, node))
                         .context("restarting a sensor node (NMT)")?;

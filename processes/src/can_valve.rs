@@ -14,7 +14,7 @@
 use anyhow::{Context, Result};
 use hydractl_bus::can::{open_port, CanPort, Filter};
 use hydractl_bus::{clock, Bus};
-use hydractl_can::canopen::{cob_id, Emergency};
+use hydractl_can::canopen::{cob_id, Emergency, NmtState};
 use hydractl_can::master::{ValveFrame, ValveMaster};
 use hydractl_can::profile::Profile;
 use hydractl_can::valve::DeviceState;
@@ -25,6 +25,7 @@ pub enum ValveFault {
     Emergency(Emergency),
     State(DeviceState),
     HeartbeatLost,
+    NotOperational(NmtState),
 }
 
 impl std::fmt::Display for ValveFault {
@@ -33,6 +34,7 @@ impl std::fmt::Display for ValveFault {
             Self::Emergency(e) => write!(f, "EMCY {:#06x} ({})", e.code, e.describe()),
             Self::State(s) => write!(f, "the valve reports {}", s.name()),
             Self::HeartbeatLost => write!(f, "the valve's heartbeat stopped"),
+            Self::NotOperational(state) => write!(f, "the valve's heartbeat says {}", state.name()),
         }
     }
 }
@@ -77,6 +79,17 @@ impl CanValve {
                 continue;
             };
             match what {
+                ValveFrame::Heartbeat(state) if state != NmtState::Operational => {
+                    if self.was_active {
+                        // Rebooted or stopped under us: its state is gone.
+                        self.fault.get_or_insert(ValveFault::NotOperational(state));
+                    } else {
+                        // Missed its start (or booted after it): again.
+                        for frame in self.master.start_frames() {
+                            self.port.send(&frame).context("starting the valve node again")?;
+                        }
+                    }
+                }
                 ValveFrame::Status(DeviceState::Active) => self.was_active = true,
                 ValveFrame::Status(state) if self.was_active && state.is_fault() => {
                     self.fault.get_or_insert(ValveFault::State(state));
@@ -101,7 +114,9 @@ impl CanValve {
         let command = if drive && self.fault.is_none() { command } else { 0.0 };
         let set_point = self.master.set_point_frame(command)?;
         self.port.send(&set_point).context("sending the valve's set point")?;
-        if self.fault.is_none() {
+        // Brought up for the machine's readings only: not by the neutral of
+        // a start or an end, not for the simulated plant.
+        if self.fault.is_none() && drive {
             if let Some(control) = self.master.bring_up_frame()? {
                 self.port.send(&control).context("bringing the valve up")?;
             }

@@ -12,6 +12,9 @@ use hydractl_processes::can_valve::CanValve;
 use hydractl_samples::{fault, service, source, valid, SensorSample, TorqueSample, ValveSample};
 use hydractl_stages::{ValveFaults, ValveStage};
 
+/// Readings whose source is remembered: more than the guard's age.
+const SOURCES: usize = 16;
+
 const COMMAND: usize = 0;
 const SENSOR: usize = 1;
 
@@ -29,6 +32,15 @@ enum Device {
 /// neutral, whatever ended the process's loop.
 struct Actuator {
     device: Device,
+    /// The source of each of the last readings, by sequence number: a
+    /// command drives the machine's valve only if the reading it answers
+    /// was the machine's.
+    sources: [(u64, u32); SOURCES],
+    /// The set point last sent and whether it was for the machine, sent
+    /// again on every tick without a decision: the valve's RPDO timeout
+    /// is for a dead valve process, not for a quiet loop.
+    last_sent: (f64, bool),
+    last_sent_at: Instant,
     out: Outlet<ValveSample>,
     newest: SensorSample,
     /// The last thing driven was [`Actuator::off`].
@@ -40,8 +52,13 @@ impl Actuator {
         // The device first: the valve is what moves the load.
         let mut device_fault = None;
         if let Device::Can(valve) = &mut self.device {
-            let from_machine = self.newest.source == source::MACHINE;
+            let answered = self.sources[sample.sensor_seq as usize % SOURCES];
+            let from_machine = self.newest.source == source::MACHINE
+                && answered == (sample.sensor_seq, source::MACHINE)
+                && sample.faults & fault::OFF == 0;
             valve.drive(sample.command, from_machine)?;
+            self.last_sent = (sample.command, from_machine);
+            self.last_sent_at = Instant::now();
             device_fault = valve.fault();
             // What the machine's valve does is what is published: neutral
             // until it reports Active.
@@ -60,6 +77,28 @@ impl Actuator {
             Some(why) => anyhow::bail!("valve: {why}; neutral sent, ending so that the valve is brought up afresh"),
             None => Ok(()),
         }
+    }
+
+    /// A reading arrived: its source noted.
+    fn note(&mut self, reading: SensorSample) {
+        self.newest = reading;
+        self.sources[reading.sensor_seq as usize % SOURCES] = (reading.sensor_seq, reading.source);
+    }
+
+    /// No decision this tick: a CAN valve is sent its last set point again
+    /// (the guard drives neutral when the silence lasts).
+    fn refresh(&mut self, every: Duration) -> Result<()> {
+        if let Device::Can(valve) = &mut self.device {
+            if self.last_sent_at.elapsed() < every {
+                return Ok(());
+            }
+            valve.drive(self.last_sent.0, self.last_sent.1)?;
+            self.last_sent_at = Instant::now();
+            if let Some(why) = valve.fault() {
+                anyhow::bail!("valve: {why}; neutral sent, ending so that the valve is brought up afresh");
+            }
+        }
+        Ok(())
     }
 
     /// Neutral, and a CAN valve put to hold: the process is leaving.
@@ -111,6 +150,9 @@ fn main() -> Result<()> {
     };
     let mut actuator = Actuator {
         device,
+        sources: [(u64::MAX, source::SIMULATION); SOURCES],
+        last_sent: (0.0, false),
+        last_sent_at: Instant::now(),
         out: Outlet::open(bus, service::VALVE)?,
         newest: SensorSample::default(),
         is_off: false,
@@ -135,7 +177,7 @@ fn main() -> Result<()> {
                 // and any that arrived with it.
                 let mut neutral = None;
                 while let Some(s) = sensor.next()? {
-                    actuator.newest = s;
+                    actuator.note(s);
                     neutral = stage.on_sensor(s.sensor_seq, s.valid == valid::ALL).or(neutral);
                 }
                 let newest = actuator.newest;
@@ -155,6 +197,9 @@ fn main() -> Result<()> {
                     }
                     _ => None,
                 };
+                if decision.is_none() && wake == Wake::Tick {
+                    actuator.refresh(silence_timeout / 4)?;
+                }
                 if let Some((seq, sensor_time_ns, command, requested, faults, variant)) = decision {
                     // Silent again after another timeout: said again.
                     last_driven = Instant::now();

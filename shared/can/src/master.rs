@@ -46,6 +46,8 @@ pub enum SensorFrame {
 pub struct SensorMaster {
     sync_cob_id: u16,
     encoder: Pdo,
+    /// The node, not derived from the PDO's COB-ID (which a config may move).
+    encoder_node: NodeId,
     encoder_scale: crate::encoder::EncoderScale,
     pressure: [PressureChannel; 2],
     /// Encoder, transducer A, transducer B.
@@ -66,6 +68,7 @@ impl SensorMaster {
         Self {
             sync_cob_id: profile.sync_cob_id,
             encoder: profile.encoder_position,
+            encoder_node: profile.encoder,
             encoder_scale: profile.encoder_scale,
             pressure: profile.pressure,
             heartbeats: [
@@ -98,7 +101,7 @@ impl SensorMaster {
     }
 
     fn encoder_node(&self) -> NodeId {
-        (self.encoder.cob_id & 0x7F) as NodeId
+        self.encoder_node
     }
 
     /// What brings each sensor node up: its heartbeat producer time set by
@@ -135,7 +138,7 @@ impl SensorMaster {
         for (i, watch) in self.heartbeats.iter_mut().enumerate() {
             if watch.on_frame(frame, now_ns) {
                 return Ok(SensorFrame::Heartbeat(match i {
-                    0 => (self.encoder.cob_id & 0x7F) as NodeId,
+                    0 => self.encoder_node,
                     _ => self.pressure[i - 1].node,
                 }));
             }

@@ -295,6 +295,18 @@ mod tests {
     }
 
     #[test]
+    fn a_can_table_the_loop_cannot_keep_is_named() {
+        let ok = format!("{DEFAULT_SIM_TOML}\n[can]\n");
+        Config::parse(&ok, Path::new("x.toml")).expect("the defaults fit");
+        let late = format!("{DEFAULT_SIM_TOML}\n[can]\npdo_deadline_us = 950\n");
+        let e = Config::parse(&late, Path::new("x.toml")).expect_err("no time to answer");
+        assert!(e.to_string().contains("pdo_deadline_us = 950"), "{e}");
+        let short = format!("{DEFAULT_SIM_TOML}\n[can.valve]\nrpdo_timeout_ms = 8\n");
+        let e = Config::parse(&short, Path::new("x.toml")).expect_err("shorter than the tick allows");
+        assert!(e.to_string().contains("rpdo_timeout_ms = 8"), "{e}");
+    }
+
+    #[test]
     fn restart_rules_parse_and_bad_ones_are_named() {
         let text =
             format!("{DEFAULT_SIM_TOML}\n[supervisor.processes.valve]\npolicy = \"on-failure\"\nmax_restarts = 3\n");

@@ -57,6 +57,35 @@ impl Config {
                 source,
             })?;
             if self.timing.control_rate_hz.is_finite() && self.timing.control_rate_hz > 0.0 {
+                let period_us = 1e6 / self.timing.control_rate_hz;
+                // The chain answers after the deadline and before the next
+                // SYNC: a deadline past 80 % of the period leaves it no time.
+                if f64::from(profile.pdo_deadline_us) > 0.8 * period_us {
+                    return Err(ConfigError::Can {
+                        path: path.to_owned(),
+                        source: hydractl_can::profile::ProfileError {
+                            section: String::new(),
+                            reason: format!(
+                                "pdo_deadline_us = {} is past 80 % of the {period_us:.0} µs period: the loop would have no time to answer before the next SYNC",
+                                profile.pdo_deadline_us
+                            ),
+                        },
+                    });
+                }
+                let silence_tick_ms = self.control.valve_guard.silence_timeout_ms / 4.0;
+                if silence_tick_ms >= f64::from(profile.valve_rpdo_timeout_ms) / 2.0 {
+                    return Err(ConfigError::Can {
+                        path: path.to_owned(),
+                        source: hydractl_can::profile::ProfileError {
+                            section: ".valve".into(),
+                            reason: format!(
+                                "rpdo_timeout_ms = {} is too short for the valve process's {silence_tick_ms} ms tick \
+                                 ([control.valve_guard] silence_timeout_ms / 4), on which it sends its set point again: at least twice the tick",
+                                profile.valve_rpdo_timeout_ms
+                            ),
+                        },
+                    });
+                }
                 let budget = profile.budget((1e9 / self.timing.control_rate_hz) as u64);
                 if !budget.fits {
                     return Err(ConfigError::CanBudget {
