@@ -134,6 +134,8 @@ fn parse_resume(text: &str) -> Result<Resume, String> {
 }
 
 pub struct Started {
+    /// Every line this process logs names it and its pid.
+    _log_span: tracing::span::EnteredSpan,
     pub name: String,
     pub config: Config,
     pub bus: Bus,
@@ -203,14 +205,33 @@ impl Started {
             _ => p,
         });
         if let Err(e) = placement::run_realtime(priority) {
-            eprintln!("{}: {e}", self.name);
+            tracing::warn!("{e}");
         }
     }
+}
+
+/// Logs go through `tracing` to stderr (a service's stderr is the
+/// journal), filtered by `RUST_LOG` (default `info`), each line in the span
+/// of the process and its pid. Set up at start; nothing logs on a cycle.
+fn init_logging(name: &str) -> tracing::span::EnteredSpan {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    // Only the first set-up of a process takes; there is only one.
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_target(false)
+        .without_time()
+        .try_init();
+    tracing::info_span!("hydractl", process = %name, pid = std::process::id()).entered()
 }
 
 /// Parses the arguments, loads the config and opens the node `name`.
 pub fn start(name: &str) -> Result<Started> {
     let args = ProcessArgs::parse();
+    let log_span = init_logging(name);
     // Die with the parent (the supervisor, or `hydractl run` for the
     // supervisor): a killed parent must not leave the loop running.
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).context("setting the parent-death signal")?;
@@ -222,13 +243,14 @@ pub fn start(name: &str) -> Result<Started> {
         placement::pin_to_loop_cpu(config.timing.loop_cpu)
     };
     if let Err(e) = placed {
-        eprintln!("{name}: {e}");
+        tracing::warn!("{e}");
     }
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
     let bus = Bus::open(&scope, name).with_context(|| format!("{name}: opening the bus"))?;
     let injected = InjectedFault::for_process(name, std::env::var(INJECT_FAULT_ENV).ok().as_deref())?;
     Ok(Started {
+        _log_span: log_span,
         name: name.to_owned(),
         config,
         bus,

@@ -172,7 +172,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
         let change = change.or_else(|| seat.update(None, stream_seq, seq, clock::now_ns(), period_ns));
         match change {
             Some(SeatChange::Take { at_seq }) => {
-                eprintln!("{name}: drives the loop from reading {at_seq}");
+                tracing::info!("drives the loop from reading {at_seq}");
                 if let (Body::Simulated { plant, sensors }, PlantKind::Simulation, Some(r)) =
                     (&mut body, kind, last_measured)
                 {
@@ -344,8 +344,8 @@ fn wait_for_chain(bus: &hydractl_bus::Bus) -> Result<()> {
             return Ok(());
         }
         if started.elapsed() >= CHAIN_START_TIMEOUT {
-            eprintln!(
-                "plant: after {CHAIN_START_TIMEOUT:?} nothing publishes on {}; starting without them",
+            tracing::warn!(
+                "after {CHAIN_START_TIMEOUT:?} nothing publishes on {}; starting without them",
                 missing.join(", ")
             );
             return Ok(());

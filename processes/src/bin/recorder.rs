@@ -66,7 +66,7 @@ fn main() -> Result<()> {
     })?;
     let files = recorder.finish()?;
     for file in files {
-        eprintln!("recorder: wrote {}", file.display());
+        tracing::info!("wrote {}", file.display());
     }
     failure.map_or(Ok(()), Err)
 }

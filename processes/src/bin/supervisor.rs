@@ -19,7 +19,7 @@ fn main() -> Result<()> {
         timing.interrupts_off_loop_cpu,
     );
     for e in refusals {
-        eprintln!("supervisor: {e}");
+        tracing::warn!("{e}");
     }
     // Over what a crashed run left: its dead nodes (its files, when nothing
     // of it was alive, `hydractl run` removed before starting us).

@@ -339,8 +339,8 @@ impl Supervisor {
                         false
                     }
                 };
-                eprintln!(
-                    "supervisor: the valve rejected {} commands in {} readings as {what}: {} misbehaves; {}",
+                tracing::warn!(
+                    "the valve rejected {} commands in {} readings as {what}: {} misbehaves; {}",
                     rejected.count,
                     2 * policy.misbehaving_after_periods,
                     child.name,
@@ -386,8 +386,8 @@ impl Supervisor {
                 child.kill_hung();
                 cleanup_needed = true;
                 spinner_found = true;
-                eprintln!(
-                    "supervisor: {} (pid {pid}) spins: more than {:.0} % of its CPU for {} ms; killed",
+                tracing::error!(
+                    "{} (pid {pid}) spins: more than {:.0} % of its CPU for {} ms; killed",
                     child.name,
                     policy.spinning_cpu_share * 100.0,
                     busy_for.as_millis()
@@ -424,8 +424,8 @@ impl Supervisor {
                 valve_safe_after: None,
             };
             if child.reap() {
-                eprintln!(
-                    "supervisor: {} (pid {pid}) exited after reading {}",
+                tracing::error!(
+                    "{} (pid {pid}) exited after reading {}",
                     child.name,
                     last_seq.unwrap_or(0)
                 );
@@ -445,8 +445,8 @@ impl Supervisor {
                     hung_after,
                 )
             {
-                eprintln!(
-                    "supervisor: {} (pid {pid}) hung: no output for {} ms while its input flowed; killed",
+                tracing::error!(
+                    "{} (pid {pid}) hung: no output for {} ms while its input flowed; killed",
                     child.name,
                     silent_for.as_millis()
                 );
@@ -461,7 +461,7 @@ impl Supervisor {
             if !std::mem::replace(&mut restarting[i], true) {
                 if let Some(fault) = faults[i].take() {
                     let why = children[i].given_up.clone().unwrap_or_default();
-                    eprintln!("supervisor: {} is left down: {why}", children[i].name);
+                    tracing::error!("{} is left down: {why}", children[i].name);
                     swaps.publish_fault(children[i].name, fault, None)?;
                 }
             }
@@ -471,7 +471,7 @@ impl Supervisor {
                 cleanup_needed = true;
                 if !r.child.after_stop(now, policy) {
                     let why = r.child.given_up.clone().unwrap_or_default();
-                    eprintln!("supervisor: the recorder is left down: {why}");
+                    tracing::error!("the recorder is left down: {why}");
                 }
             }
         }
@@ -531,7 +531,7 @@ impl Supervisor {
         ours.extend(swaps.standby_pid());
         ours.push(own_pid);
         for (pid, name) in strangers.look(bus, now, &ours) {
-            eprintln!("supervisor: process {pid} publishes on {name} and is not one of the run's: a stranger");
+            tracing::warn!("process {pid} publishes on {name} and is not one of the run's: a stranger");
             swaps.publish_plant_event(
                 code::EVENT_STRANGER,
                 last_reading.map_or(0, |r| r.sensor_seq),

@@ -54,7 +54,7 @@ impl Seat {
             cleanup_needed = true;
             if !spare.after_stop(now, policy) {
                 let why = spare.given_up.clone().unwrap_or_default();
-                eprintln!("supervisor: the standby {} is left down: {why}", spare.name);
+                tracing::error!("the standby {} is left down: {why}", spare.name);
             }
         }
         if spare.restart_due(now) {
@@ -92,8 +92,8 @@ impl Seat {
         swaps.hand_over(code::STAGE_PLANT, at_seq, pid, source::SIMULATION)?;
         self.change_places(children, now);
         self.source = source::SIMULATION;
-        eprintln!(
-            "supervisor: {why}: the loop now runs on the SIMULATED plant, from reading {at_seq} and the last measured state; `hydractl plant machine` goes back"
+        tracing::warn!(
+            "{why}: the loop now runs on the SIMULATED plant, from reading {at_seq} and the last measured state; `hydractl plant machine` goes back"
         );
         swaps.publish_plant_event(
             code::EVENT_FALLBACK,
@@ -134,7 +134,7 @@ impl Seat {
         self.change_places(children, now);
         self.source = to;
         let message = format!("the loop runs on the {} from reading {at_seq}", plant_name(to));
-        eprintln!("supervisor: as asked, {message}");
+        tracing::info!("as asked, {message}");
         swaps.publish_plant_event(
             code::EVENT_PLANT_SWITCH,
             at_seq,

@@ -225,9 +225,10 @@ impl Swaps {
                     return self.fail(swap, &why);
                 }
                 if !retired {
-                    eprintln!(
-                        "supervisor: the {} process replaced by {} did not acknowledge its retirement; it is stopped",
-                        swap.from, swap.to
+                    tracing::warn!(
+                        "the {} process replaced by {} did not acknowledge its retirement; it is stopped",
+                        swap.from,
+                        swap.to
                     );
                 }
                 let quality = judged.unwrap_or(SwitchQuality {
