@@ -14,6 +14,7 @@ pub mod can_sensors;
 pub mod can_valve;
 pub mod handover;
 pub mod live_plant;
+pub mod logging;
 pub mod recording;
 pub mod supervisor;
 
@@ -210,32 +211,15 @@ impl Started {
     }
 }
 
-/// Logs go through `tracing` to stderr (a service's stderr is the
-/// journal), filtered by `RUST_LOG` (default `info`), each line in the span
-/// of the process and its pid. Set up at start; nothing logs on a cycle.
-fn init_logging(name: &str) -> tracing::span::EnteredSpan {
-    use std::io::IsTerminal;
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    // Only the first set-up of a process takes; there is only one.
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::stderr().is_terminal())
-        .with_target(false)
-        .without_time()
-        .try_init();
-    tracing::info_span!("hydractl", process = %name, pid = std::process::id()).entered()
-}
-
 /// Parses the arguments, loads the config and opens the node `name`.
 pub fn start(name: &str) -> Result<Started> {
     let args = ProcessArgs::parse();
-    let log_span = init_logging(name);
     // Die with the parent (the supervisor, or `hydractl run` for the
     // supervisor): a killed parent must not leave the loop running.
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).context("setting the parent-death signal")?;
     let config = Config::load_or_default(args.config.as_deref())?;
+    let filter = logging::filter(None, &config.log).map_err(anyhow::Error::msg)?;
+    let log_span = logging::init(name, filter, &config.log);
     // The loop's CPU is for the loop: watching and writing files go elsewhere.
     let placed = if name == "supervisor" || name == "recorder" {
         placement::keep_off_loop_cpu(config.timing.loop_cpu)

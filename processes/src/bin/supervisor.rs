@@ -10,6 +10,13 @@ use hydractl_processes::supervisor::Supervisor;
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("supervisor")?;
+    tracing::info!(
+        config = %started.args.config.as_deref().map_or("built-in sim.toml".into(), |p| p.display().to_string()),
+        prefix = started.bus.scope().prefix(),
+        "hydractl {} supervising the loop ({})",
+        env!("CARGO_PKG_VERSION"),
+        if started.config.machine.is_some() { "on the machine, the simulated plant standing by" } else { "on the simulated plant" }
+    );
     // For the whole run: the loop's stages wake at every hop, and nothing
     // but the loop should take its CPU.
     let timing = &started.config.timing;
@@ -34,5 +41,8 @@ fn main() -> Result<()> {
     });
     // Clean up whatever the outcome; report the outcome's error first.
     let stopped = supervisor.stop(started.bus);
+    if stopped.is_ok() {
+        tracing::info!("every process stopped, the valve's last command neutral");
+    }
     outcome.and(stopped)
 }

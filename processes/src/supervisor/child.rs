@@ -86,11 +86,11 @@ pub struct Supervised {
 }
 
 impl Supervised {
-    pub fn new(name: &'static str, binary_dir: &Path, config: Option<PathBuf>) -> Self {
+    pub fn new(name: &'static str, process_dir: &Path, config: Option<PathBuf>) -> Self {
         let now = Instant::now();
         Self {
             name,
-            binary: binary_dir.join(name),
+            binary: process_dir.join(name),
             config,
             variant: None,
             child: None,
@@ -135,6 +135,15 @@ impl Supervised {
             .stdin(Stdio::null())
             .spawn()
             .with_context(|| format!("starting {}", self.binary.display()))?;
+        tracing::info!(
+            child = self.name,
+            child_pid = child.id(),
+            variant = self.variant.unwrap_or(""),
+            "started {} (pid {}){}",
+            self.name,
+            child.id(),
+            self.variant.map_or(String::new(), |v| format!(" as {v}"))
+        );
         self.pids.push(child.id());
         self.child = Some(child);
         let now = Instant::now();

@@ -85,7 +85,7 @@ impl Supervisor {
     /// yet). `config_path` is passed on to every child; `record` is where a
     /// recorder writes, when the run records.
     pub fn open(bus: &Bus, config: &Config, args: &crate::ProcessArgs) -> Result<Self> {
-        let dir = hydractl_bus::binary_dir()?;
+        let dir = hydractl_bus::process_dir()?;
         let config_path = args.config.clone();
         let mut children: Vec<Supervised> = PIPELINE
             .iter()
@@ -425,6 +425,9 @@ impl Supervisor {
             };
             if child.reap() {
                 tracing::error!(
+                    child = child.name,
+                    child_pid = pid,
+                    seq = last_seq.unwrap_or(0),
                     "{} (pid {pid}) exited after reading {}",
                     child.name,
                     last_seq.unwrap_or(0)
@@ -446,6 +449,9 @@ impl Supervisor {
                 )
             {
                 tracing::error!(
+                    child = child.name,
+                    child_pid = pid,
+                    seq = last_seq.unwrap_or(0),
                     "{} (pid {pid}) hung: no output for {} ms while its input flowed; killed",
                     child.name,
                     silent_for.as_millis()

@@ -18,14 +18,49 @@ pub use outlet::{Inlet, Outlet, PublisherWatch, Reader};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{guarded, run_loop, run_single, run_until, wait_input, Flow, Input, LoopExit, Wake};
 
-/// The directory of the running executable, where cargo puts its sibling
-/// binaries (the supervisor, the processes).
-pub fn binary_dir() -> Result<std::path::PathBuf, BusError> {
+/// Names the folder of the process binaries, over where they are looked
+/// for otherwise ([`process_dir`]).
+pub const PROCESS_DIR_ENV: &str = "HYDRACTL_PROCESS_DIR";
+
+/// Where the installed package keeps the process binaries, relative to the
+/// folder of `hydractl` (`/usr/bin` → `/usr/lib/hydractl`): the processes'
+/// plain names (`sensor`, `valve`) stay off the `PATH`.
+pub const INSTALLED_PROCESS_DIR: &str = "../lib/hydractl";
+
+/// The binary every process folder holds; the others sit beside it.
+const SUPERVISOR: &str = "supervisor";
+
+/// The folder of the process binaries (the supervisor, the stages):
+/// [`PROCESS_DIR_ENV`] when set, else beside the running executable (a
+/// build tree's `target/release`, or the supervisor starting its
+/// children), else the installed package's [`INSTALLED_PROCESS_DIR`].
+pub fn process_dir() -> Result<std::path::PathBuf, BusError> {
     let exe = std::env::current_exe().map_err(|source| BusError::Executable { source })?;
-    exe.parent()
-        .map(std::path::Path::to_path_buf)
-        .ok_or(BusError::Executable {
-            source: std::io::Error::other("the executable has no parent directory"),
+    let from_env = std::env::var_os(PROCESS_DIR_ENV).map(std::path::PathBuf::from);
+    find_process_dir(from_env.as_deref(), &exe)
+}
+
+fn find_process_dir(from_env: Option<&std::path::Path>, exe: &std::path::Path) -> Result<std::path::PathBuf, BusError> {
+    let holds_supervisor = |dir: &std::path::Path| dir.join(SUPERVISOR).is_file();
+    if let Some(dir) = from_env {
+        return if holds_supervisor(dir) {
+            Ok(dir.to_path_buf())
+        } else {
+            Err(BusError::NoProcesses {
+                looked_in: format!("{} (from {PROCESS_DIR_ENV})", dir.display()),
+            })
+        };
+    }
+    let beside = exe.parent().ok_or(BusError::Executable {
+        source: std::io::Error::other("the executable has no parent directory"),
+    })?;
+    let installed = beside.join(INSTALLED_PROCESS_DIR);
+    [beside.to_path_buf(), installed.clone()]
+        .into_iter()
+        .find(|dir| holds_supervisor(dir))
+        .map(|dir| dir.canonicalize().unwrap_or(dir))
+        .ok_or_else(|| BusError::NoProcesses {
+            looked_in: format!("{} and {}", beside.display(), installed.display()),
         })
 }
 
@@ -33,6 +68,10 @@ pub fn binary_dir() -> Result<std::path::PathBuf, BusError> {
 pub enum BusError {
     #[error("cannot locate the running executable: {source}")]
     Executable { source: std::io::Error },
+    #[error(
+        "no process binaries (`supervisor` and the stages) in {looked_in}: build them (`cargo build --release --workspace`), install the package, or set HYDRACTL_PROCESS_DIR to their folder"
+    )]
+    NoProcesses { looked_in: String },
     #[error("iceoryx2: {what}: {detail}")]
     Ipc { what: String, detail: String },
     #[error("invalid run prefix `{0}`: use letters, digits and `_`, at most 32")]
@@ -51,5 +90,44 @@ impl BusError {
             what: what.into(),
             detail: format!("{detail:?}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn touch(path: &Path) {
+        std::fs::create_dir_all(path.parent().expect("parent")).expect("folder");
+        std::fs::write(path, b"").expect("file");
+    }
+
+    #[test]
+    fn the_process_binaries_are_found_in_a_build_tree_and_in_an_installed_package() {
+        let root = tempfile::tempdir().expect("temp dir");
+        let build = root.path().join("target/release");
+        touch(&build.join("hydractl"));
+        touch(&build.join("supervisor"));
+        assert_eq!(find_process_dir(None, &build.join("hydractl")).expect("beside"), build);
+
+        let usr = root.path().join("usr");
+        touch(&usr.join("bin/hydractl"));
+        touch(&usr.join("lib/hydractl/supervisor"));
+        assert_eq!(
+            find_process_dir(None, &usr.join("bin/hydractl")).expect("installed"),
+            usr.join("lib/hydractl").canonicalize().expect("exists")
+        );
+
+        let error = find_process_dir(Some(&usr.join("bin")), &usr.join("bin/hydractl"))
+            .expect_err("the variable names a folder without them")
+            .to_string();
+        assert!(error.contains(PROCESS_DIR_ENV) && error.contains("usr/bin"), "{error}");
+        let nowhere = root.path().join("elsewhere/hydractl");
+        let error = find_process_dir(None, &nowhere).expect_err("none").to_string();
+        assert!(
+            error.contains("elsewhere") && error.contains("../lib/hydractl"),
+            "{error}"
+        );
     }
 }

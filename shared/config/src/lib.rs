@@ -5,6 +5,7 @@
 //! give only what differs.
 
 mod control;
+mod deploy;
 mod supervisor;
 mod timing;
 mod validate;
@@ -20,6 +21,7 @@ pub use control::{
     ControlConfig, OuterLoopConfig, OuterPart, PositionVariant, Structure, TorqueLoopConfig, TorqueVariant,
     ValveGuardParams, MAX_GUARD_PERIODS,
 };
+pub use deploy::{LogConfig, LogOutput, RecordingConfig};
 pub use supervisor::{OnLimitCycle, RestartPolicy, RestartRule, SupervisorConfig, SUPERVISED_PROCESSES};
 pub use timing::{StallPolicy, Timing};
 
@@ -50,6 +52,14 @@ pub enum ConfigError {
     },
     #[error("config {path}: [timing] {reason}")]
     Timing { path: PathBuf, reason: String },
+    #[error("config {path}: [log] level = {level:?}: {reason}")]
+    LogLevel {
+        path: PathBuf,
+        level: String,
+        reason: String,
+    },
+    #[error("config {path}: [recording] {reason}")]
+    Recording { path: PathBuf, reason: String },
     #[error("config {path}: [supervisor] {reason}")]
     Supervisor { path: PathBuf, reason: String },
     #[error("config {path}: {source}")]
@@ -103,6 +113,10 @@ pub struct Config {
     /// processes speak CANopen to them, over SocketCAN or the virtual bus.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub can: Option<CanConfig>,
+    #[serde(default)]
+    pub log: LogConfig,
+    #[serde(default)]
+    pub recording: RecordingConfig,
 }
 
 /// The machine stand-in: the simulated plant's parameters, overridden.

@@ -35,6 +35,11 @@ pub struct Timing {
     /// How long, in periods, the paused plant waits for a command before it
     /// counts a deadline miss and goes on with the valve's last command.
     pub command_timeout_periods: f64,
+    /// Each loop process locks its memory (`mlockall`) once its start-up
+    /// allocations are done, so that the loop never waits for a page
+    /// brought back from disk or first touched. Needs `LimitMEMLOCK=infinity`
+    /// (or root); without it the process says so once and runs on.
+    pub lock_memory: bool,
 }
 
 /// A stalled computer delays the loop. A simulated plant can wait for it
@@ -59,6 +64,7 @@ impl Default for Timing {
             interrupts_off_loop_cpu: false,
             stall_policy: StallPolicy::Pause,
             command_timeout_periods: 1.5,
+            lock_memory: true,
         }
     }
 }

@@ -199,6 +199,23 @@ impl Config {
                 });
             }
         }
+        if let Some(level) = &self.log.level {
+            tracing_subscriber::EnvFilter::builder()
+                .parse(level)
+                .map_err(|e| ConfigError::LogLevel {
+                    path: path.to_owned(),
+                    level: level.clone(),
+                    reason: e.to_string(),
+                })?;
+        }
+        if let Some(keep) = self.recording.keep_mb {
+            if !(keep.is_finite() && keep > 0.0) {
+                return Err(ConfigError::Recording {
+                    path: path.to_owned(),
+                    reason: format!("keep_mb must be a positive number of MB, got {keep}"),
+                });
+            }
+        }
         if sup.restart_backoff_max_ms < sup.restart_backoff_initial_ms {
             return Err(ConfigError::Supervisor {
                 path: path.to_owned(),

@@ -225,7 +225,7 @@ pub fn bench(args: LatencyArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::load_or_default(args.config.as_deref())?;
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
-        eprintln!("{e}");
+        tracing::warn!("{e}");
     }
     // Held for the benchmark as `hydractl run` holds them for a run.
     let timing = &config.timing;
@@ -235,7 +235,7 @@ pub fn bench(args: LatencyArgs) -> Result<()> {
         timing.interrupts_off_loop_cpu,
     );
     for e in refusals {
-        eprintln!("{e}");
+        tracing::warn!("{e}");
     }
     let stage_config = args.config.as_deref();
     let rounds = args.rounds.max(1);
@@ -677,7 +677,7 @@ pub fn stage(args: StageArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::load_or_default(args.config.as_deref())?;
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
-        eprintln!("{e}");
+        tracing::warn!("{e}");
     }
     if std::env::var("PROTO_PRIO_ASC").is_ok() {
         let _ = placement::run_realtime(Some(51 + args.index as u8));

@@ -47,7 +47,7 @@ pub fn bench(args: StallsArgs) -> Result<()> {
     let (reservation, refusals) =
         placement::reserve_for_run(cpu, timing.cpu_dma_latency_us, timing.interrupts_off_loop_cpu);
     for e in refusals {
-        eprintln!("{e}");
+        tracing::warn!("{e}");
     }
     let refusals = placement::enter_loop(cpu, Some(99));
     if let Some(e) = refusals.first() {

@@ -146,7 +146,7 @@ fn replay(file: &std::path::Path, config: Option<PathBuf>) -> Result<()> {
         port.send(&logged.frame)?;
     }
     let span = frames.last().map_or(0, |l| l.time_ns.saturating_sub(first.time_ns)) as f64 / 1e9;
-    eprintln!(
+    tracing::info!(
         "replayed {} frames over {span:.3} s from {} onto the virtual bus {interface}",
         frames.len(),
         file.display()

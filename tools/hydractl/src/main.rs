@@ -30,6 +30,15 @@ use hydractl_sim::{simulate, simulate_streaming, simulate_valve_steps, write_csv
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Log filter for hydractl and every process it starts (`info`,
+    /// `debug`, `warn,hydractl=debug`); before `RUST_LOG` and a config's
+    /// `[log] level`.
+    #[arg(long, global = true, value_name = "FILTER")]
+    log_level: Option<String>,
+    /// The folder of the process binaries (`supervisor`, the stages)
+    /// [default: beside hydractl, else the installed ../lib/hydractl].
+    #[arg(long, global = true, value_name = "DIR", env = hydractl_bus::PROCESS_DIR_ENV)]
+    process_dir: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -201,6 +210,16 @@ pub(crate) fn emit(text: &str) -> Result<()> {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
+    let log = hydractl_config::LogConfig::default();
+    let filter = hydractl_processes::logging::filter(cli.log_level.as_deref(), &log).map_err(anyhow::Error::msg)?;
+    let _log_span = hydractl_processes::logging::init("hydractl", filter, &log);
+    // The processes hydractl starts inherit both.
+    if let Some(level) = &cli.log_level {
+        std::env::set_var("RUST_LOG", level);
+    }
+    if let Some(dir) = &cli.process_dir {
+        std::env::set_var(hydractl_bus::PROCESS_DIR_ENV, dir);
+    }
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Sim(args) => run_sim(args),

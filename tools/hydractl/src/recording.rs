@@ -79,7 +79,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
             scope.prefix()
         );
     }
-    let binary = hydractl_bus::binary_dir()?.join("recorder");
+    let binary = hydractl_bus::process_dir()?.join("recorder");
     let mut command = Command::new(&binary);
     if let Some(config) = &args.config {
         command.arg("--config").arg(config);
@@ -103,7 +103,7 @@ pub fn record(args: RecordArgs) -> Result<()> {
         if last_check.elapsed() >= Duration::from_millis(500) {
             last_check = Instant::now();
             if !run_alive(&scope)? {
-                eprintln!("the run stopped; finishing the recording");
+                tracing::info!("the run stopped; finishing the recording");
                 break;
             }
         }
@@ -152,7 +152,7 @@ pub fn replay(args: ReplayArgs) -> Result<()> {
         Ok(())
     })?;
     if let Some(why) = &outcome.truncated {
-        eprintln!("{}: {why}", args.file.display());
+        tracing::warn!("{}: {why}", args.file.display());
     }
     for wanted in &args.topics {
         if !topics.iter().any(|(t, _)| t == wanted) {
@@ -264,7 +264,7 @@ fn export_candump(file: &Path, out: Option<&Path>) -> Result<()> {
         Ok(())
     })?;
     if let Some(why) = &read.truncated {
-        eprintln!("{}: {why}", file.display());
+        tracing::warn!("{}: {why}", file.display());
     }
     if frames.is_empty() {
         bail!(
@@ -281,7 +281,7 @@ fn export_candump(file: &Path, out: Option<&Path>) -> Result<()> {
     match out {
         Some(path) => {
             std::fs::write(path, &log).with_context(|| format!("cannot write {}", path.display()))?;
-            eprintln!("{} frames to {}", frames.len(), path.display());
+            tracing::info!("{} frames to {}", frames.len(), path.display());
             Ok(())
         }
         None => crate::emit(&log),
@@ -292,10 +292,10 @@ fn export_candump(file: &Path, out: Option<&Path>) -> Result<()> {
 fn exported(path: &Path) -> Result<hydractl_recording::Export> {
     let export = export_rows(path)?;
     if let Some(why) = &export.read.truncated {
-        eprintln!("{}: {why}", path.display());
+        tracing::warn!("{}: {why}", path.display());
     }
     if export.held > 0 {
-        eprintln!(
+        tracing::warn!(
             "{}: {} of {} readings have no recorded command or reference (the stage skipped them); the previous one is held",
             path.display(),
             export.held,

@@ -243,7 +243,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         }
     }
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
-        eprintln!("{e}");
+        tracing::warn!("{e}");
     }
     quiet_ipc_logging();
     let scope = RunScope::from_env()?;
@@ -257,7 +257,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         );
     }
     scope.clean_stale()?;
-    let dir = hydractl_bus::binary_dir()?;
+    let dir = hydractl_bus::process_dir()?;
     // The virtual bus and the simulated ECUs are the machine here: they are
     // there before the stack and outlive it, so that the valve's last
     // frames reach the valve.
@@ -318,7 +318,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         );
     }
     if summary.plant == "simulation" && !summary.plant_switches.is_empty() {
-        eprintln!("the run ended on the SIMULATED plant, not the machine");
+        tracing::warn!("the run ended on the SIMULATED plant, not the machine");
     }
     crate::emit(&format!(
         "{} cycles, {} deadline misses, latency p50 {} µs p99 {} µs p99.9 {} µs max {:.0} µs, tracking error rms {:.4} rad max {:.4} rad, {} restart(s)\n",
@@ -469,8 +469,11 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                     code::EVENT_FALLBACK | code::EVENT_PLANT_SWITCH => {
                         let lost = e.kind == code::EVENT_FALLBACK;
                         if lost {
-                            eprintln!(
-                                "\nthe machine is lost: the loop now runs on the SIMULATED plant from reading {}",
+                            above_live_line(live);
+                            tracing::warn!(
+                                event = "fallback",
+                                seq = e.sensor_seq,
+                                "the machine is lost: the loop now runs on the SIMULATED plant from reading {}",
                                 e.sensor_seq
                             );
                         }
@@ -488,14 +491,45 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                             service: name_str(&e.process).to_owned(),
                             at_seq: e.sensor_seq,
                         };
-                        eprintln!(
-                            "\na stranger, process {}, publishes on the run's {} (at reading {})",
-                            stranger.pid, stranger.service, stranger.at_seq
+                        above_live_line(live);
+                        tracing::warn!(
+                            event = "stranger",
+                            seq = stranger.at_seq,
+                            "a stranger, process {}, publishes on the run's {} (at reading {})",
+                            stranger.pid,
+                            stranger.service,
+                            stranger.at_seq
                         );
                         strangers.push(stranger);
                     }
-                    code::EVENT_SWAP => swaps.push(swap),
-                    code::EVENT_SWAP_FAILED => swap_failures.push(swap),
+                    code::EVENT_SWAP => {
+                        above_live_line(live);
+                        tracing::info!(
+                            event = "swap",
+                            stage = swap.stage.as_str(),
+                            seq = swap.at_seq,
+                            "{} now runs {} (was {}) from reading {}: {} missed cycles, command step {:.2} % of its range",
+                            swap.stage,
+                            swap.to,
+                            swap.from,
+                            swap.at_seq,
+                            swap.missed_cycles,
+                            swap.command_step * 100.0
+                        );
+                        swaps.push(swap);
+                    }
+                    code::EVENT_SWAP_FAILED => {
+                        above_live_line(live);
+                        tracing::warn!(
+                            event = "swap_failed",
+                            stage = swap.stage.as_str(),
+                            "{} did not change to {}: {} stays in charge",
+                            swap.stage,
+                            swap.to,
+                            swap.from
+                        );
+                        swap_failures.push(swap);
+                    }
                     code::EVENT_CRASH
                     | code::EVENT_HANG
                     | code::EVENT_MISBEHAVING
@@ -522,7 +556,15 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
                         };
                         after_fault.push((faults_seen.len(), tracking.count()));
                         // Said as it happens, above the live line.
-                        eprintln!("\n{}", fault.says());
+                        above_live_line(live);
+                        tracing::warn!(
+                            event = fault.kind,
+                            child = fault.process.as_str(),
+                            child_pid = fault.pid,
+                            seq = fault.last_seq,
+                            "{}",
+                            fault.says()
+                        );
                         faults_seen.push(fault);
                     }
                     _ => {}
@@ -616,6 +658,14 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
             }
         }),
     })
+}
+
+/// On a terminal, ends the live line (redrawn in place) so that a log line
+/// does not overwrite it.
+fn above_live_line(live: bool) {
+    if live {
+        eprintln!();
+    }
 }
 
 /// Reads back the files the recorder wrote.

@@ -1,0 +1,38 @@
+//! `[log]` and `[recording]`: what a run on the vehicle writes, and where.
+
+use serde::{Deserialize, Serialize};
+
+/// `[log]`: the processes' log lines.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct LogConfig {
+    /// A `tracing` filter (`info`, `warn,hydractl=debug`); `RUST_LOG` and
+    /// `hydractl --log-level` come before it. None: `info`.
+    pub level: Option<String>,
+    pub output: LogOutput,
+}
+
+/// Where log lines go.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LogOutput {
+    /// The systemd journal, with fields, when stderr is connected to it
+    /// (a service); else stderr as text.
+    #[default]
+    Auto,
+    /// stderr as text, also under systemd.
+    Terminal,
+    /// The journal; stderr as text where there is none.
+    Journald,
+}
+
+/// `[recording]`: a run's recording, when it records.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecordingConfig {
+    /// Keep at most this many MB of split files: the oldest part is
+    /// deleted before a new one would pass it, as a flight recorder does.
+    /// Needs a split (`split_size_mb` or `split_duration_s`); `hydractl
+    /// run --keep-mb` comes before it. None: keep everything.
+    pub keep_mb: Option<f64>,
+}
