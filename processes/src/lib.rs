@@ -196,6 +196,13 @@ impl Started {
     /// (opening files, mapping memory) would hold the loop's CPU, and stall
     /// the running stages, for the whole of its start-up.
     pub fn enter_realtime(&self) {
+        // Locked first: a page faulted in at the loop's priority would
+        // stall the chain beside it.
+        if self.config.timing.lock_memory {
+            if let Err(e) = placement::lock_memory() {
+                tracing::warn!("{e}");
+            }
+        }
         // The valve, the last line of safety, one step above the chain: its
         // own clock runs even when a stage above it spins at the loop's
         // priority (SAFETY.md), at the price of taking the CPU in the

@@ -227,6 +227,7 @@ impl Recorder {
             bytes: self.writer.bytes(),
             files: self.writer.files().len() as u32,
             channels: self.taps.len() as u32,
+            ..RecorderStatus::default()
         }
     }
 

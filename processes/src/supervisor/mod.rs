@@ -30,7 +30,7 @@ use faults::{after_limit_cycle, blamed_for_rejections, cpu_times, is_hung, Comeb
 use heartbeats::{Heartbeats, OuterLoopWatch};
 use recorder::RecorderChild;
 use seat::Seat;
-use status::status_of;
+use status::{status_of, LoopMemory};
 use strangers::Strangers;
 use swaps::Swaps;
 
@@ -78,6 +78,7 @@ pub struct Supervisor {
     /// itself did not run, and the whole computer stalled.
     last_tick: Option<Instant>,
     strangers: Strangers,
+    loop_memory: LoopMemory,
 }
 
 impl Supervisor {
@@ -142,6 +143,7 @@ impl Supervisor {
             cpu: vec![CpuWatch::default(); count],
             last_tick: None,
             strangers: Strangers::new(),
+            loop_memory: LoopMemory::default(),
         })
     }
 
@@ -151,12 +153,8 @@ impl Supervisor {
         if let Some(r) = &mut self.recorder {
             r.start(bus, &self.scope)?;
         }
-        for child in self.children.iter_mut() {
-            child.spawn(&self.scope, &[])?;
-        }
-        if let Some(spare) = &mut self.seat.spare {
-            spare.spawn(&self.scope, &["--standby".to_owned()])?;
-        }
+        // Subscribed before the stages publish: each connects to these as
+        // it opens its output, not on its loop.
         self.ports = Some(Ports {
             commands: CommandServer::open(bus, service::SUPERVISOR_COMMAND)?,
             heartbeats: Heartbeats::open(
@@ -165,6 +163,12 @@ impl Supervisor {
             )?,
             status: Outlet::open(bus, service::SUPERVISOR_STATUS)?,
         });
+        for child in self.children.iter_mut() {
+            child.spawn(&self.scope, &[])?;
+        }
+        if let Some(spare) = &mut self.seat.spare {
+            spare.spawn(&self.scope, &["--standby".to_owned()])?;
+        }
         let now = clock::now_ns();
         self.last_answer_ns.iter_mut().for_each(|t| *t = now);
         Ok(())
@@ -195,6 +199,7 @@ impl Supervisor {
             cpu,
             last_tick,
             strangers,
+            loop_memory,
         } = self;
         let Some(Ports {
             commands,
@@ -558,6 +563,7 @@ impl Supervisor {
                 own_pid,
                 now,
                 hung_after,
+                loop_memory,
             ))?;
             *status_seq += 1;
         }

@@ -3,12 +3,45 @@
 
 use std::time::{Duration, Instant};
 
-use hydractl_bus::clock;
-use hydractl_samples::{fixed_name, source, ProcessStatus, SupervisorStatus, MAX_PROCESSES};
+use std::collections::HashMap;
+
+use hydractl_bus::{clock, placement};
+use hydractl_samples::{fixed_name, source, ProcessStatus, SupervisorStatus, MAX_PROCESSES, UNKNOWN};
 
 use super::child::Supervised;
 use super::seat::Seat;
 
+/// The loop processes' memory: whether each locked it, and how many page
+/// faults it took since it answered its first reading (the goal is none).
+/// Counted from its first answer, not from its start: until its peers
+/// have all opened their ports, connecting to one maps its memory, which
+/// is the start-up's work, not the loop's.
+#[derive(Default)]
+pub(super) struct LoopMemory {
+    /// By pid: its page faults when it was first seen answering.
+    at_first_answer: HashMap<u32, u64>,
+}
+
+impl LoopMemory {
+    /// Process `pid`'s page faults since its first answer and whether its
+    /// memory is locked (`VmLck` in `/proc/PID/status`): [`UNKNOWN`] and 0
+    /// before it answered.
+    fn of(&mut self, child: &Supervised) -> (u32, u32) {
+        let (Some(pid), Some(_)) = (child.pid(), child.last_seq) else {
+            return (UNKNOWN, 0);
+        };
+        let Some(now) = placement::page_faults(Some(pid)) else {
+            return (UNKNOWN, 0);
+        };
+        let at_first = *self.at_first_answer.entry(pid).or_insert(now);
+        (
+            now.saturating_sub(at_first).min(u64::from(UNKNOWN - 1)) as u32,
+            u32::from(placement::memory_locked(pid)),
+        )
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 pub(super) fn status_of(
     seq: u64,
     children: &[Supervised],
@@ -17,6 +50,7 @@ pub(super) fn status_of(
     own_pid: u32,
     now: Instant,
     hung_after: Duration,
+    memory: &mut LoopMemory,
 ) -> SupervisorStatus {
     let mut status = SupervisorStatus {
         seq,
@@ -24,25 +58,36 @@ pub(super) fn status_of(
         stage_time_ns: clock::now_ns(),
         ..SupervisorStatus::default()
     };
-    let entries = children.iter().map(|c| ProcessStatus {
-        name: fixed_name(c.name),
-        variant: fixed_name(c.variant.unwrap_or(if c.name == "torque" { "bypassed" } else { "" })),
-        pid: c.pid().unwrap_or(0),
-        restarts: c.restarts,
-        healthy: u32::from(c.is_running() && now.saturating_duration_since(c.last_output) <= hung_after),
-        reserved: 0,
-    });
+    let entries = children
+        .iter()
+        .map(|c| {
+            let (page_faults_after_start, memory_locked) = memory.of(c);
+            ProcessStatus {
+                name: fixed_name(c.name),
+                variant: fixed_name(c.variant.unwrap_or(if c.name == "torque" { "bypassed" } else { "" })),
+                pid: c.pid().unwrap_or(0),
+                restarts: c.restarts,
+                healthy: u32::from(c.is_running() && now.saturating_duration_since(c.last_output) <= hung_after),
+                page_faults_after_start,
+                memory_locked,
+            }
+        })
+        .collect::<Vec<_>>();
     // The plant not in charge: the simulated plant is ready while it runs;
     // the machine is well while its readings come.
-    let spare = seat.spare.as_ref().map(|p| ProcessStatus {
-        name: fixed_name(p.name),
-        variant: fixed_name("standby"),
-        pid: p.pid().unwrap_or(0),
-        restarts: p.restarts,
-        healthy: u32::from(
-            p.is_running() && (p.name == "plant" || now.saturating_duration_since(p.last_output) <= hung_after),
-        ),
-        reserved: 0,
+    let spare = seat.spare.as_ref().map(|p| {
+        let (page_faults_after_start, memory_locked) = memory.of(p);
+        ProcessStatus {
+            name: fixed_name(p.name),
+            variant: fixed_name("standby"),
+            pid: p.pid().unwrap_or(0),
+            restarts: p.restarts,
+            healthy: u32::from(
+                p.is_running() && (p.name == "plant" || now.saturating_duration_since(p.last_output) <= hung_after),
+            ),
+            page_faults_after_start,
+            memory_locked,
+        }
     });
     // The recorder has no output of its own on the loop: healthy while it runs.
     let recorder = recorder.map(|r| ProcessStatus {
@@ -51,7 +96,8 @@ pub(super) fn status_of(
         pid: r.pid().unwrap_or(0),
         restarts: r.restarts,
         healthy: u32::from(r.is_running()),
-        reserved: 0,
+        page_faults_after_start: UNKNOWN,
+        memory_locked: 0,
     });
     let supervisor = ProcessStatus {
         name: fixed_name("supervisor"),
@@ -59,14 +105,17 @@ pub(super) fn status_of(
         pid: own_pid,
         restarts: 0,
         healthy: 1,
-        reserved: 0,
+        page_faults_after_start: UNKNOWN,
+        memory_locked: 0,
     };
     let mut count = 0;
-    for (slot, entry) in status
-        .processes
-        .iter_mut()
-        .zip(entries.chain(spare).chain(recorder).chain(std::iter::once(supervisor)))
-    {
+    for (slot, entry) in status.processes.iter_mut().zip(
+        entries
+            .into_iter()
+            .chain(spare)
+            .chain(recorder)
+            .chain(std::iter::once(supervisor)),
+    ) {
         *slot = entry;
         count += 1;
     }

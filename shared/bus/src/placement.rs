@@ -50,6 +50,70 @@ pub fn run_realtime(priority: Option<u8>) -> Result<(), PlacementError> {
     }
 }
 
+/// How much of the stack a loop touches before it locks its memory: a page
+/// of the stack first reached on the loop would be a page fault there.
+const STACK_TO_TOUCH: usize = 256 * 1024;
+
+/// Locks every page of this process in memory, those it has and those it
+/// will map (`mlockall`), and touches a stack's worth first, so that the
+/// loop never waits for a page. Only with `RLIMIT_MEMLOCK` unlimited or as
+/// root: with a finite limit, a later allocation past it would fail.
+pub fn lock_memory() -> Result<(), PlacementError> {
+    use nix::sys::resource::{getrlimit, Resource, RLIM_INFINITY};
+    let (soft, _) = getrlimit(Resource::RLIMIT_MEMLOCK).map_err(|source| PlacementError::MemoryLock {
+        reason: format!("cannot read RLIMIT_MEMLOCK: {source}"),
+    })?;
+    if soft != RLIM_INFINITY && !nix::unistd::geteuid().is_root() {
+        return Err(PlacementError::MemoryLock {
+            reason: format!(
+                "its limit is {} kB (LimitMEMLOCK=infinity in the unit, or memlock unlimited in limits.conf)",
+                soft / 1024
+            ),
+        });
+    }
+    touch_stack();
+    nix::sys::mman::mlockall(nix::sys::mman::MlockAllFlags::MCL_CURRENT | nix::sys::mman::MlockAllFlags::MCL_FUTURE)
+        .map_err(|source| PlacementError::MemoryLock {
+            reason: source.to_string(),
+        })
+}
+
+#[inline(never)]
+fn touch_stack() {
+    let mut stack = [0u8; STACK_TO_TOUCH];
+    for page in stack.chunks_mut(4096) {
+        page[0] = 1;
+    }
+    std::hint::black_box(&stack);
+}
+
+/// A process's page faults so far, minor and major (`/proc/PID/stat`
+/// fields 10 and 12); `None` for this process's own.
+pub fn page_faults(pid: Option<u32>) -> Option<u64> {
+    let path = pid.map_or_else(|| "/proc/self/stat".to_owned(), |pid| format!("/proc/{pid}/stat"));
+    let text = std::fs::read_to_string(path).ok()?;
+    page_faults_in_stat(&text)
+}
+
+/// Whether process `pid` has memory locked (`VmLck` in `/proc/PID/status`).
+pub fn memory_locked(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/status")).is_ok_and(|text| locked_kb(&text).is_some_and(|kb| kb > 0))
+}
+
+fn locked_kb(status: &str) -> Option<u64> {
+    let line = status.lines().find_map(|l| l.strip_prefix("VmLck:"))?;
+    line.split_ascii_whitespace().next()?.parse().ok()
+}
+
+fn page_faults_in_stat(text: &str) -> Option<u64> {
+    // The command name, in parentheses, may hold spaces: count from after it.
+    let (_, after_name) = text.rsplit_once(')')?;
+    let fields: Vec<&str> = after_name.split_ascii_whitespace().collect();
+    // Field 3 (the state) is the first after the name.
+    let field = |n: usize| fields.get(n - 3)?.parse::<u64>().ok();
+    Some(field(10)? + field(12)?)
+}
+
 /// The kernel's PM QoS request for the CPUs' wake-up latency.
 const CPU_DMA_LATENCY: &str = "/dev/cpu_dma_latency";
 
@@ -306,6 +370,8 @@ pub enum PlacementError {
     Pin { what: String, source: nix::Error },
     #[error("cannot run at real-time priority {priority} (SCHED_FIFO needs root or CAP_SYS_NICE): {source}; running at normal priority")]
     Priority { priority: u8, source: nix::Error },
+    #[error("cannot lock memory: {reason}; its pages may be faulted in on the loop")]
+    MemoryLock { reason: String },
     #[error("cannot hold {CPU_DMA_LATENCY} at {max_us} µs (needs root): {source}; idle CPUs may sleep deeply and wake slowly")]
     IdleLatency { max_us: u32, source: std::io::Error },
     #[error("cannot steer device interrupts off CPU {cpu} through {IRQ_DIR} (needs root): {source}; their handlers may delay the loop")]
@@ -324,6 +390,19 @@ fn pin(fill: impl FnOnce(&mut CpuSet) -> nix::Result<()>, what: String) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn page_faults_are_read_past_a_command_name_with_spaces() {
+        let stat = "4242 (a (b) c) S 1 4242 4242 0 -1 4194304 1234 0 56 0 10 2 0 0 20 0 1 0 100 1000 10";
+        assert_eq!(page_faults_in_stat(stat), Some(1234 + 56));
+        assert_eq!(page_faults_in_stat("4242 (x) S 1"), None);
+        assert!(page_faults(None).is_some(), "this process's own");
+        assert_eq!(
+            locked_kb("Name:\tvalve\nVmLck:\t   12345 kB\nVmPin:\t0 kB\n"),
+            Some(12345)
+        );
+        assert_eq!(locked_kb("Name:\tvalve\n"), None);
+    }
 
     #[test]
     fn cpu_lists_read_and_write_as_the_kernel_does() {

@@ -266,7 +266,8 @@ mod tests {
             pid: 42,
             restarts: 1,
             healthy: 1,
-            reserved: 0,
+            page_faults_after_start: 7,
+            memory_locked: 1,
         };
         status.processes[1].name = fixed_name("a-sixteen-bytes!");
         let mut cdr = Vec::new();

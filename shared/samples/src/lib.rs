@@ -309,8 +309,16 @@ pub struct ProcessStatus {
     pub restarts: u32,
     /// 1 when running and producing output.
     pub healthy: u32,
-    pub reserved: u32,
+    /// A loop process: page faults since it answered its first reading
+    /// (the goal is none); [`UNKNOWN`] for a process with no loop, or one
+    /// that has not answered yet.
+    pub page_faults_after_start: u32,
+    /// 1 when its memory is locked (`mlockall`: `timing.lock_memory`).
+    pub memory_locked: u32,
 }
+
+/// A count not known.
+pub const UNKNOWN: u32 = u32::MAX;
 
 pub const MAX_PROCESSES: usize = 12;
 
@@ -450,6 +458,15 @@ pub struct RecorderStatus {
     pub files: u32,
     /// Channels being recorded.
     pub channels: u32,
+    /// Samples received and not in any file: the disk was full (or would
+    /// not take them), counted from the last chunk that reached the file.
+    pub unrecorded: u64,
+    /// The first of them, by its own timestamp; 0 when there is none.
+    pub unrecorded_since_ns: u64,
+    /// Times the disk was full.
+    pub disk_full: u32,
+    /// Oldest parts deleted to keep the recording within `keep_mb`.
+    pub deleted_files: u32,
 }
 
 /// The latency benchmark's sample: one pass through the five stages, with
@@ -553,9 +570,9 @@ mod tests {
         assert_eq!(size_of::<PositionSample>(), 8 * 8 + 8);
         assert_eq!(size_of::<TorqueSample>(), 6 * 8 + 8);
         assert_eq!(size_of::<ValveSample>(), 5 * 8 + 8);
-        assert_eq!(size_of::<ProcessStatus>(), 16 + 16 + 16);
-        assert_eq!(size_of::<SupervisorStatus>(), 16 + MAX_PROCESSES * 48 + 8);
-        assert_eq!(size_of::<RecorderStatus>(), 7 * 8);
+        assert_eq!(size_of::<ProcessStatus>(), 16 + 16 + 20);
+        assert_eq!(size_of::<SupervisorStatus>(), 16 + MAX_PROCESSES * 52 + 8);
+        assert_eq!(size_of::<RecorderStatus>(), 10 * 8);
         assert_eq!(size_of::<Handover>(), 5 * 8);
         assert_eq!(size_of::<SupervisorEvent>(), 10 * 8 + 8 + 48);
         assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 176);

@@ -191,14 +191,14 @@ recordable!(
     "uint64 seq\nuint64 stage_time_ns\nProcessStatus[12] processes\nuint32 process_count\nuint32 plant_is_simulation\n\
 ================================================================================\n\
 MSG: hydractl/ProcessStatus\n\
-string name\nstring variant\nuint32 pid\nuint32 restarts\nuint32 healthy\nuint32 reserved\n",
+string name\nstring variant\nuint32 pid\nuint32 restarts\nuint32 healthy\nuint32 page_faults_after_start\nuint32 memory_locked\n",
     &[("name", 16), ("variant", 16)]
 );
 recordable!(
     RecorderStatus,
     "RecorderStatus",
     stage_time_ns,
-    "uint64 seq\nuint64 stage_time_ns\nuint64 messages\nuint64 dropped\nuint64 gaps\nuint64 bytes\nuint32 files\nuint32 channels\n"
+    "uint64 seq\nuint64 stage_time_ns\nuint64 messages\nuint64 dropped\nuint64 gaps\nuint64 bytes\nuint32 files\nuint32 channels\nuint64 unrecorded\nuint64 unrecorded_since_ns\nuint32 disk_full\nuint32 deleted_files\n"
 );
 recordable!(
     Handover,

@@ -58,11 +58,20 @@ struct LatencySummary {
     max: f64,
 }
 
-#[derive(Serialize, Clone)]
+#[derive(Serialize, Clone, Default)]
 struct ProcessSummary {
     name: String,
     pids: Vec<u32>,
     restarts: u32,
+    /// A loop process: page faults after it entered its loop, over all its
+    /// pids (the goal is 0: its memory locked and touched before). Null
+    /// for a process with no loop, or none that entered it.
+    page_faults_after_start: Option<u64>,
+    /// A loop process: whether every one of its pids locked its memory.
+    memory_locked: Option<bool>,
+    /// The newest count of each pid.
+    #[serde(skip)]
+    faults_by_pid: Vec<(u32, u64, bool)>,
 }
 
 #[derive(Serialize)]
@@ -267,6 +276,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         }
         _ => None,
     };
+    let taps = Taps::open(&scope)?;
     let mut command = Command::new(dir.join("supervisor"));
     if let Some(config) = &args.config {
         command.arg("--config").arg(config);
@@ -284,7 +294,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         .spawn()
         .with_context(|| format!("starting {}", dir.join("supervisor").display()))?;
     let supervisor_pid = supervisor.id();
-    let outcome = watch(&scope, &args, &config, supervisor_pid);
+    let outcome = watch(taps, &args, &config, supervisor_pid);
     // The supervisor stops the loop, then lets the recorder finish its file.
     stop_child(&mut supervisor, "the supervisor", Duration::from_secs(15))?;
     let mut summary = outcome?;
@@ -334,12 +344,49 @@ pub fn run(args: RunArgs) -> Result<()> {
     ))
 }
 
-fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Result<RunSummary> {
-    let bus = Bus::open(scope, "monitor")?;
-    let valve: Reader<ValveSample> = Reader::open(&bus, service::VALVE, 256)?;
-    let position: Reader<PositionSample> = Reader::open(&bus, service::POSITION, 256)?;
-    let plant: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 4)?;
-    let status: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 4)?;
+/// What `run` reads of the loop, opened before the stack starts: each
+/// stage connects to these readers as it opens its output, not on its loop.
+struct Taps {
+    bus: Bus,
+    valve: Reader<ValveSample>,
+    position: Reader<PositionSample>,
+    plant: Reader<PlantReading>,
+    status: Reader<SupervisorStatus>,
+    sensor: Reader<SensorSample>,
+    friction: Reader<FrictionSample>,
+    torque: Reader<hydractl_samples::TorqueSample>,
+    events: Reader<SupervisorEvent>,
+}
+
+impl Taps {
+    fn open(scope: &RunScope) -> Result<Self> {
+        let bus = Bus::open(scope, "monitor")?;
+        Ok(Self {
+            valve: Reader::open(&bus, service::VALVE, 256)?,
+            position: Reader::open(&bus, service::POSITION, 256)?,
+            plant: Reader::open(&bus, service::PLANT_READING, 4)?,
+            status: Reader::open(&bus, service::SUPERVISOR_STATUS, 4)?,
+            sensor: Reader::open(&bus, service::SENSOR, 256)?,
+            friction: Reader::open(&bus, service::FRICTION, 256)?,
+            torque: Reader::open(&bus, service::TORQUE, 256)?,
+            events: Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?,
+            bus,
+        })
+    }
+}
+
+fn watch(taps: Taps, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Result<RunSummary> {
+    let Taps {
+        bus,
+        valve,
+        position,
+        plant,
+        status,
+        sensor,
+        friction,
+        torque,
+        events,
+    } = taps;
     let started = Instant::now();
     // The duration runs from the loop's first cycle: a run is never stopped
     // while its processes are still starting (their start-up is not made to
@@ -351,8 +398,6 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     // From the reading to each stage's output; the valve's is the
     // sensor-to-valve latency.
     let mut by_stage: [LatencyHistogram; STAGES.len()] = std::array::from_fn(|_| LatencyHistogram::new());
-    let sensor: Reader<SensorSample> = Reader::open(&bus, service::SENSOR, 256)?;
-    let friction: Reader<FrictionSample> = Reader::open(&bus, service::FRICTION, 256)?;
     let mut tracking = Tracking::new(config.timing.control_rate_hz.round() as usize);
     let machine_expected = config.machine.is_some();
     let mut cycles = 0u64;
@@ -362,12 +407,10 @@ fn watch(scope: &RunScope, args: &RunArgs, config: &Config, supervisor_pid: u32)
     let mut processes: Vec<ProcessSummary> = vec![ProcessSummary {
         name: "supervisor".into(),
         pids: vec![supervisor_pid],
-        restarts: 0,
+        ..ProcessSummary::default()
     }];
     let mut last_print = Instant::now();
     let mut cycles_at_last_print = 0u64;
-    let torque: Reader<hydractl_samples::TorqueSample> = Reader::open(&bus, service::TORQUE, 256)?;
-    let events: Reader<SupervisorEvent> = Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?;
     let (mut swaps, mut swap_failures) = (Vec::new(), Vec::new());
     let mut faults_seen: Vec<FaultSummary> = Vec::new();
     let mut strangers = Vec::new();

@@ -4,7 +4,7 @@
 
 use std::fmt::Write as _;
 
-use hydractl_samples::{name_str, SupervisorStatus};
+use hydractl_samples::{name_str, SupervisorStatus, UNKNOWN};
 
 use super::{LatencySummary, ProcessSummary};
 
@@ -189,8 +189,7 @@ pub(super) fn merge_status(processes: &mut Vec<ProcessSummary>, status: &Supervi
             None => {
                 processes.push(ProcessSummary {
                     name: name.to_owned(),
-                    pids: Vec::new(),
-                    restarts: 0,
+                    ..ProcessSummary::default()
                 });
                 processes.len() - 1
             }
@@ -200,6 +199,19 @@ pub(super) fn merge_status(processes: &mut Vec<ProcessSummary>, status: &Supervi
             p.pids.push(entry.pid);
         }
         p.restarts = entry.restarts;
+        if entry.pid != 0 && entry.page_faults_after_start != UNKNOWN {
+            let count = (
+                entry.pid,
+                u64::from(entry.page_faults_after_start),
+                entry.memory_locked != 0,
+            );
+            match p.faults_by_pid.iter_mut().find(|(pid, _, _)| *pid == entry.pid) {
+                Some(known) => *known = count,
+                None => p.faults_by_pid.push(count),
+            }
+            p.page_faults_after_start = Some(p.faults_by_pid.iter().map(|(_, n, _)| n).sum());
+            p.memory_locked = Some(p.faults_by_pid.iter().all(|(_, _, locked)| *locked));
+        }
     }
 }
 
