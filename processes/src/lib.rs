@@ -61,6 +61,11 @@ pub struct SplitArgs {
     /// Start a new file every this many seconds.
     #[arg(long)]
     pub split_duration_s: Option<f64>,
+    /// With a split: keep at most this many MB of parts, deleting the
+    /// oldest as a flight recorder does [default: the config's
+    /// `[recording] keep_mb`, else keep all].
+    #[arg(long)]
+    pub keep_mb: Option<f64>,
 }
 
 impl SplitArgs {
@@ -72,9 +77,13 @@ impl SplitArgs {
     /// an error names a flag that is not a positive number.
     pub fn recorder_args(&self, out: &std::path::Path) -> Result<Vec<String>> {
         let mut args = vec!["--out".to_owned(), out.display().to_string()];
+        if self.keep_mb.is_some() && !self.splits() {
+            anyhow::bail!("--keep-mb needs a split to delete: --split-size-mb or --split-duration-s");
+        }
         for (flag, value) in [
             ("--split-size-mb", self.split_size_mb),
             ("--split-duration-s", self.split_duration_s),
+            ("--keep-mb", self.keep_mb),
         ] {
             if let Some(v) = value {
                 if !(v.is_finite() && v > 0.0) {

@@ -211,6 +211,17 @@ impl Recorder {
         Ok(())
     }
 
+    /// What the writer did on its own since the last call (a full disk,
+    /// parts deleted), for the recorder to say.
+    pub fn take_news(&mut self) -> Vec<hydractl_recording::WriterNews> {
+        self.writer.take_news()
+    }
+
+    /// Seconds from the first sample received to `ns`.
+    pub fn seconds_in(&self, ns: u64) -> f64 {
+        ns.saturating_sub(self.writer.first_ns().unwrap_or(ns)) as f64 * 1e-9
+    }
+
     /// Closes the current chunk: what is written survives a kill.
     pub fn flush(&mut self) -> Result<()> {
         Ok(self.writer.flush()?)
@@ -218,6 +229,7 @@ impl Recorder {
 
     pub fn status(&mut self, now_ns: u64) -> RecorderStatus {
         self.status_seq += 1;
+        let unrecorded = self.writer.unrecorded();
         RecorderStatus {
             seq: self.status_seq - 1,
             stage_time_ns: now_ns,
@@ -227,7 +239,10 @@ impl Recorder {
             bytes: self.writer.bytes(),
             files: self.writer.files().len() as u32,
             channels: self.taps.len() as u32,
-            ..RecorderStatus::default()
+            unrecorded: unrecorded.samples,
+            unrecorded_since_ns: unrecorded.since_ns.unwrap_or(0),
+            disk_full: unrecorded.disk_full,
+            deleted_files: self.writer.deleted_files(),
         }
     }
 

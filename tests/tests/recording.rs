@@ -274,7 +274,9 @@ fn a_killed_recorder_leaves_a_readable_file_and_is_restarted_into_a_new_one() {
     assert!(restarted.is_some(), "the recorder is restarted");
     std::thread::sleep(Duration::from_millis(1500));
     signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    // What the recorder missed between its kill and its restart is not
+    // known: the run says its recording is incomplete.
+    assert_eq!(wait_exit(&mut run.0, Duration::from_secs(30)).code(), Some(3));
 
     let cut = summarize(&file).expect("a killed recorder's file reads");
     assert!(cut.truncated.is_some(), "{cut:?}");

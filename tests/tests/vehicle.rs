@@ -40,3 +40,184 @@ fn a_thirty_second_run_takes_no_page_fault_on_the_loop() {
     assert!(summary["cycles"].as_u64().expect("cycles") >= 29_000, "{summary}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A tmpfs of `size` mounted at `dir` for a test, unmounted when dropped:
+/// a small disk that fills for certain.
+struct SmallDisk(std::path::PathBuf);
+
+impl SmallDisk {
+    fn mount(dir: &Path, size: &str) -> Self {
+        std::fs::create_dir_all(dir).expect("mount point");
+        let out = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir)
+            .output()
+            .expect("mount runs");
+        assert!(
+            out.status.success(),
+            "mounting a {size} tmpfs at {} (needs root, as .ci/run has): {}",
+            dir.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Self(dir.to_path_buf())
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+#[test]
+fn a_recording_onto_a_full_disk_stops_once_says_what_it_lost_and_the_loop_holds() {
+    let _turn = serial();
+    let scope = unique_scope("diskfull");
+    let dir = scratch_dir("diskfull");
+    let disk = SmallDisk::mount(&dir.join("small"), "1m");
+    let (file, summary_path) = (disk.0.join("run.mcap"), dir.join("summary.json"));
+    let witness = Witness::in_background(&scope);
+    let out = run_to_end(
+        &scope,
+        &[
+            "--duration",
+            "8",
+            "--record",
+            file.to_str().expect("path"),
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+        std::time::Duration::from_secs(60),
+    );
+    let seen = witness.finish();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(3),
+        "the run says its recording is incomplete: {stderr}"
+    );
+    assert_eq!(
+        stderr.matches("the disk is full").count(),
+        1,
+        "said once, by the recorder: {stderr}"
+    );
+    assert!(stderr.contains("the recording is INCOMPLETE"), "{stderr}");
+    let summary = read_json(&summary_path);
+    let recording = &summary["recording"];
+    assert_eq!(recording["complete"], false, "{recording}");
+    assert_eq!(recording["recorder_restarts"], 0, "never crash-loops: {recording}");
+    assert_eq!(recording["files"].as_array().map(Vec::len), Some(1), "{recording}");
+    assert!(recording["disk_full"].as_u64() >= Some(1), "{recording}");
+    // The loop did not notice: it ran its eight seconds at its rate.
+    assert!(summary["cycles"].as_u64() >= Some(7_800), "{summary}");
+    let restarts: u64 = summary["processes"]
+        .as_array()
+        .expect("processes")
+        .iter()
+        .map(|p| p["restarts"].as_u64().unwrap_or(0))
+        .sum();
+    assert_eq!(restarts, 0, "{summary}");
+
+    // Exactly what is missing: on every loop service, what was recorded is
+    // everything published up to a cut, and nothing after it; the samples
+    // after the cut are counted in `not_recorded` (which also counts the
+    // statuses, a few dozen a second, that the witness does not watch).
+    let recorded = recorded_sequences(&file);
+    let mut unrecorded_on_the_loop = 0u64;
+    for topic in PIPELINE_SERVICES {
+        let (seen, held) = (&seen[topic], &recorded[topic]);
+        let last_held = *held.last().expect("some of it recorded");
+        let before_cut: std::collections::BTreeSet<u64> = seen.range(..=last_held).copied().collect();
+        let missing_before_cut: Vec<&u64> = before_cut.difference(held).take(5).collect();
+        assert!(
+            missing_before_cut.is_empty(),
+            "{topic}: a hole before the cut: {missing_before_cut:?}"
+        );
+        unrecorded_on_the_loop += seen.range(last_held + 1..).count() as u64;
+    }
+    let not_recorded = recording["not_recorded"]["samples"]
+        .as_u64()
+        .expect("not_recorded.samples");
+    let after_cut_s = 8.0 - recording["not_recorded"]["from_s"].as_f64().expect("from_s");
+    assert!(after_cut_s > 1.0 && after_cut_s < 7.5, "{recording}");
+    assert!(
+        not_recorded >= unrecorded_on_the_loop
+            && not_recorded <= unrecorded_on_the_loop + (60.0 * (after_cut_s + 2.0)) as u64,
+        "not_recorded {not_recorded}, of which {unrecorded_on_the_loop} on the loop's services after the cut at {} s",
+        8.0 - after_cut_s
+    );
+    drop(disk);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_ring_of_split_files_stays_within_keep_mb_for_a_run_five_times_longer() {
+    let _turn = serial();
+    let scope = unique_scope("ring");
+    let dir = scratch_dir("ring");
+    let ring = dir.join("ring");
+    std::fs::create_dir_all(&ring).expect("ring dir");
+    let (file, summary_path) = (ring.join("run.mcap"), dir.join("summary.json"));
+    const KEEP_BYTES: u64 = 400_000;
+    const SECONDS: u64 = 16;
+    let mut run = start_run(
+        &scope,
+        &[
+            "--duration",
+            &SECONDS.to_string(),
+            "--record",
+            file.to_str().expect("path"),
+            "--split-size-mb",
+            "0.1",
+            "--keep-mb",
+            "0.4",
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+    );
+    let bytes_in = |dir: &Path| -> u64 {
+        std::fs::read_dir(dir)
+            .map(|entries| {
+                entries
+                    .filter_map(Result::ok)
+                    .filter_map(|e| e.metadata().ok())
+                    .map(|m| m.len())
+                    .sum()
+            })
+            .unwrap_or(0)
+    };
+    let mut largest = 0u64;
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while run.0.try_wait().expect("wait").is_none() {
+        assert!(std::time::Instant::now() < deadline, "the run ends");
+        largest = largest.max(bytes_in(&ring));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(wait_exit(&mut run.0, std::time::Duration::from_secs(1)).success());
+    let summary = read_json(&summary_path);
+    let recording = &summary["recording"];
+    assert!(
+        largest <= KEEP_BYTES,
+        "the ring held {largest} bytes at most, over its {KEEP_BYTES}"
+    );
+    let deleted = recording["deleted_files"].as_u64().expect("deleted_files");
+    let kept = recording["files"].as_array().expect("files");
+    let part_bytes = bytes_in(&ring) / kept.len().max(1) as u64;
+    let written = (deleted + kept.len() as u64) * part_bytes;
+    assert!(
+        written >= 5 * KEEP_BYTES,
+        "a run five times longer than the ring: {written} bytes over {recording}"
+    );
+    assert_eq!(
+        recording["complete"], true,
+        "deleting by design loses nothing unsaid: {recording}"
+    );
+    // The newest part holds the run's end.
+    let newest = kept.last().and_then(|f| f.as_str()).expect("a part");
+    let held = recorded_sequences(Path::new(newest));
+    assert!(
+        held[hydractl_samples::service::VALVE].last() >= Some(&((SECONDS - 1) * 1000)),
+        "{newest}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use hydractl_bus::{clock, run_loop, Outlet};
 use hydractl_processes::recording::Recorder;
-use hydractl_recording::{RecordOptions, RecordingWriter};
+use hydractl_recording::{RecordOptions, RecordingWriter, WriterNews};
 use hydractl_samples::{service, RecorderStatus};
 
 const TICK: Duration = Duration::from_millis(5);
@@ -28,10 +28,15 @@ fn main() -> Result<()> {
         ("config".to_owned(), started.config.to_toml()),
         ("ipc_prefix".to_owned(), started.bus.scope().prefix().to_owned()),
     ]);
+    let keep_mb = record.split.keep_mb.or(started.config.recording.keep_mb);
+    if keep_mb.is_some() && !record.split.splits() {
+        anyhow::bail!("recorder: keep_mb needs a split to delete: --split-size-mb or --split-duration-s");
+    }
     let options = RecordOptions {
         split_bytes: record.split.split_size_mb.map(|mb| (mb * 1e6) as u64),
         split_seconds: record.split.split_duration_s,
         metadata,
+        keep_bytes: keep_mb.map(|mb| (mb * 1e6) as u64),
         ..RecordOptions::default()
     };
     let writer = RecordingWriter::create(&out, options).with_context(|| format!("recorder: {}", out.display()))?;
@@ -57,6 +62,9 @@ fn main() -> Result<()> {
                 last_flush = now;
                 recorder.flush()?;
             }
+            for news in recorder.take_news() {
+                say(&news, &recorder);
+            }
             if now.duration_since(last_status) >= STATUS_EVERY {
                 last_status = now;
                 status.publish(recorder.status(clock::now_ns()))?;
@@ -64,9 +72,54 @@ fn main() -> Result<()> {
             Ok(())
         })
     })?;
+    let last_status = recorder.status(clock::now_ns());
+    let news = recorder.take_news();
+    news.iter().for_each(|n| say(n, &recorder));
+    // The run reads what was not recorded from the last status, which a
+    // full disk kept out of the file.
+    status.publish(last_status)?;
     let files = recorder.finish()?;
     for file in files {
-        tracing::info!("wrote {}", file.display());
+        if last_status.unrecorded > 0 {
+            tracing::warn!(
+                unrecorded = last_status.unrecorded,
+                "wrote {} up to its last whole chunk; {} samples were not recorded",
+                file.display(),
+                last_status.unrecorded
+            );
+        } else {
+            tracing::info!("wrote {}", file.display());
+        }
     }
     failure.map_or(Ok(()), Err)
+}
+
+/// Says, once, what the writer did on its own.
+fn say(news: &WriterNews, recorder: &Recorder) {
+    let since = |ns: u64| format!("{:.3} s into the recording", recorder.seconds_in(ns));
+    match news {
+        WriterNews::Stopped { path, lost, since_ns, why } => tracing::error!(
+            unrecorded = lost,
+            "{}: {why}: the disk is full; recording STOPS here: {lost} samples since {} are lost, and every later one is counted, not recorded",
+            path.display(),
+            since(*since_ns)
+        ),
+        WriterNews::Rotated {
+            path,
+            lost,
+            since_ns,
+            deleted,
+        } => tracing::warn!(
+            unrecorded = lost,
+            "the disk is full: {lost} samples since {} are lost; deleted the oldest part{} ({}) and recording goes on in {}",
+            since(*since_ns),
+            if deleted.len() == 1 { "" } else { "s" },
+            deleted.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
+            path.display()
+        ),
+        WriterNews::Deleted(paths) => tracing::info!(
+            "keeping the recording within keep_mb: deleted {}",
+            paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+        ),
+    }
 }

@@ -14,7 +14,7 @@ pub use can::{decode_frame, encode_frame, is_can_frame, RecordedFrame, CAN_FRAME
 pub use export::{export_rows, write_csv, Export, ModelRow, MODEL_COLUMNS};
 pub use info::{summarize, ChannelSummary, RecordingSummary};
 pub use read::{decode, read_messages, ReadOutcome, RecordedMessage};
-pub use write::{ChannelHandle, RecordOptions, RecordingWriter};
+pub use write::{ChannelHandle, RecordOptions, RecordingWriter, Unrecorded, WriterNews};
 
 use std::path::PathBuf;
 

@@ -1,4 +1,4 @@
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -19,11 +19,16 @@ pub struct RecordOptions {
     pub split_seconds: Option<f64>,
     /// Uncompressed bytes per chunk: a killed recorder loses at most the
     /// chunk being filled (and the recorder also closes one every second).
+    /// The writer closes each chunk itself, so that it knows exactly which
+    /// messages reached the file when a write fails.
     pub chunk_bytes: u64,
     pub zstd_level: u32,
     /// Written as the metadata record `hydractl` at the start of each file:
     /// the config, the software version.
     pub metadata: BTreeMap<String, String>,
+    /// When splitting: keep at most this many bytes of parts, deleting the
+    /// oldest before a new part would pass it (a flight recorder's ring).
+    pub keep_bytes: Option<u64>,
 }
 
 impl Default for RecordOptions {
@@ -34,6 +39,7 @@ impl Default for RecordOptions {
             chunk_bytes: 512 * 1024,
             zstd_level: 3,
             metadata: BTreeMap::new(),
+            keep_bytes: None,
         }
     }
 }
@@ -42,6 +48,40 @@ impl RecordOptions {
     fn splits(&self) -> bool {
         self.split_bytes.is_some() || self.split_seconds.is_some()
     }
+}
+
+/// Something the writer did on its own that its owner should say: it
+/// returns no error for it, so that a recorder never stops on a full disk.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WriterNews {
+    /// The disk was full: `lost` samples since `since_ns` never reached a
+    /// file, and writing stopped; later samples are counted, not written.
+    Stopped {
+        path: PathBuf,
+        lost: u64,
+        since_ns: u64,
+        why: String,
+    },
+    /// The disk was full: `lost` samples since `since_ns` never reached a
+    /// file; the oldest parts were deleted and recording goes on in `path`.
+    Rotated {
+        path: PathBuf,
+        lost: u64,
+        since_ns: u64,
+        deleted: Vec<PathBuf>,
+    },
+    /// Parts deleted to keep the recording within its limit.
+    Deleted(Vec<PathBuf>),
+}
+
+/// What the writer received and could not put in a file.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Unrecorded {
+    pub samples: u64,
+    /// The first of them, by its log time.
+    pub since_ns: Option<u64>,
+    /// Times the disk was full.
+    pub disk_full: u32,
 }
 
 /// A channel added to a [`RecordingWriter`].
@@ -59,8 +99,8 @@ struct Channel {
 pub struct RecordingWriter {
     base: PathBuf,
     options: RecordOptions,
-    writer: mcap::Writer<CountingFile>,
-    /// The current file's length, shared with its [`CountingFile`].
+    writer: mcap::Writer<PartFile>,
+    /// The current file's length, shared with its [`GuardedFile`].
     file_len: Arc<AtomicU64>,
     path: PathBuf,
     files: Vec<PathBuf>,
@@ -70,8 +110,36 @@ pub struct RecordingWriter {
     message: Vec<u8>,
     /// A sample with text, encoded field by field.
     encoded: Vec<u8>,
+    /// Messages in the files (or in the chunk being filled).
     messages: u64,
     bytes_in_closed_files: u64,
+    /// Messages that reached a file in a closed chunk: what survives.
+    durable_messages: u64,
+    /// Messages before the current part.
+    part_start_messages: u64,
+    /// The log time of the first message after them.
+    pending_since_ns: Option<u64>,
+    /// Uncompressed bytes in the chunk being filled.
+    chunk_fill: u64,
+    unrecorded: Unrecorded,
+    /// The log time of the first message received.
+    first_ns: Option<u64>,
+    /// Writing stopped for good: the disk was full and nothing could be freed.
+    stopped: bool,
+    /// Closed parts still on disk, oldest first, with their sizes.
+    kept: VecDeque<(PathBuf, u64)>,
+    deleted_files: u32,
+    news: Vec<WriterNews>,
+}
+
+/// A part's file as the mcap writer sees it.
+type PartFile = BufWriter<GuardedFile>;
+
+/// Whether a write failed for want of room: a full disk, a quota, a file
+/// size limit.
+fn is_disk_full(error: &mcap::McapError) -> bool {
+    use std::io::ErrorKind::{FileTooLarge, QuotaExceeded, StorageFull};
+    matches!(error, mcap::McapError::Io(e) if matches!(e.kind(), StorageFull | QuotaExceeded | FileTooLarge))
 }
 
 impl RecordingWriter {
@@ -93,12 +161,38 @@ impl RecordingWriter {
             encoded: Vec::with_capacity(4096),
             messages: 0,
             bytes_in_closed_files: 0,
+            durable_messages: 0,
+            part_start_messages: 0,
+            pending_since_ns: None,
+            chunk_fill: 0,
+            unrecorded: Unrecorded::default(),
+            first_ns: None,
+            stopped: false,
+            kept: VecDeque::new(),
+            deleted_files: 0,
+            news: Vec::new(),
         })
     }
 
     /// Adds a channel for samples of `kind` on `topic` (the service name).
     pub fn add_channel(&mut self, topic: &str, kind: &'static SampleKind) -> Result<ChannelHandle, RecordingError> {
-        let id = add_to_file(&mut self.writer, &self.path, topic, kind)?;
+        let id = if self.stopped {
+            0
+        } else {
+            match add_to_file(&mut self.writer, &self.path, topic, kind) {
+                Ok(id) => id,
+                Err(e) => {
+                    let time_ns = self.pending_since_ns.unwrap_or(0);
+                    self.on_failure(e, 0, time_ns)?;
+                    // Into the part that made room, or none: written no more.
+                    if self.stopped {
+                        0
+                    } else {
+                        add_to_file(&mut self.writer, &self.path, topic, kind)?
+                    }
+                }
+            }
+        };
         self.channels.push(Channel {
             topic: topic.to_owned(),
             kind,
@@ -165,8 +259,15 @@ impl RecordingWriter {
                 have: self.topics(),
             });
         }
+        self.first_ns.get_or_insert(time_ns);
+        if self.stopped {
+            self.count_unrecorded(1, time_ns);
+            return Ok(());
+        }
         if self.split_due(time_ns) {
-            self.next_part()?;
+            if let Err(e) = self.next_part() {
+                return self.on_failure(e, 1, time_ns);
+            }
         }
         self.file_start_ns.get_or_insert(time_ns);
         self.message.clear();
@@ -178,23 +279,170 @@ impl RecordingWriter {
             log_time: time_ns,
             publish_time: time_ns,
         };
-        self.writer
-            .write_to_known_channel(&header, &self.message)
-            .map_err(|source| mcap_error(&self.path, source))?;
+        let written = self.writer.write_to_known_channel(&header, &self.message);
+        if let Err(source) = written {
+            return self.on_failure(mcap_error(&self.path, source), 1, time_ns);
+        }
+        self.pending_since_ns.get_or_insert(time_ns);
         self.messages += 1;
+        self.chunk_fill += self.message.len() as u64;
+        if self.chunk_fill >= self.options.chunk_bytes {
+            self.flush()?;
+        }
         Ok(())
+    }
+
+    fn count_unrecorded(&mut self, samples: u64, since_ns: u64) {
+        self.unrecorded.samples += samples;
+        self.unrecorded.since_ns.get_or_insert(since_ns);
+    }
+
+    /// A write that failed: for want of room, everything since the last
+    /// closed chunk (and `failing` samples more, from `time_ns`) is lost,
+    /// the oldest parts make room when there are any, and otherwise
+    /// writing stops; any other error is the caller's.
+    fn on_failure(&mut self, error: RecordingError, failing: u64, time_ns: u64) -> Result<(), RecordingError> {
+        let RecordingError::Mcap { source, .. } = &error else {
+            return Err(error);
+        };
+        if !is_disk_full(source) {
+            return Err(error);
+        }
+        let why = source.to_string();
+        self.unrecorded.disk_full += 1;
+        // What the failure left in the file is final: read it back. A
+        // chunk may have reached it whole although the write that
+        // followed it (its index) failed.
+        let mut in_file = 0u64;
+        let _ = crate::read_messages(&self.path, |_| {
+            in_file += 1;
+            Ok(())
+        });
+        let accepted = self.messages - self.part_start_messages;
+        let (lost, since_ns) = if in_file >= accepted {
+            (failing, time_ns)
+        } else {
+            (accepted - in_file + failing, self.pending_since_ns.unwrap_or(time_ns))
+        };
+        if lost > 0 {
+            self.count_unrecorded(lost, since_ns);
+        }
+        self.messages = self.part_start_messages + in_file.min(accepted);
+        self.durable_messages = self.messages;
+        self.pending_since_ns = None;
+        self.chunk_fill = 0;
+        // The part is readable up to its last closed chunk; its end is lost.
+        let broken = self.path.clone();
+        if self.options.keep_bytes.is_some() && !self.kept.is_empty() {
+            let deleted = self.delete_oldest(1);
+            self.kept
+                .push_back((broken.clone(), std::fs::metadata(&broken).map_or(0, |m| m.len())));
+            match self.open_next_part() {
+                Ok(()) => {
+                    self.news.push(WriterNews::Rotated {
+                        path: self.path.clone(),
+                        lost,
+                        since_ns,
+                        deleted,
+                    });
+                    return Ok(());
+                }
+                // Not even a new file: nothing more can be written.
+                Err(_) => {
+                    self.kept.pop_back();
+                }
+            }
+        }
+        self.stopped = true;
+        self.news.push(WriterNews::Stopped {
+            path: broken,
+            lost,
+            since_ns,
+            why,
+        });
+        Ok(())
+    }
+
+    /// What happened since the last call, for the owner to say.
+    pub fn take_news(&mut self) -> Vec<WriterNews> {
+        std::mem::take(&mut self.news)
+    }
+
+    pub fn unrecorded(&self) -> Unrecorded {
+        self.unrecorded
+    }
+
+    /// The log time of the first message received, written or not.
+    pub fn first_ns(&self) -> Option<u64> {
+        self.first_ns
+    }
+
+    /// Parts deleted to stay within `keep_bytes`.
+    pub fn deleted_files(&self) -> u32 {
+        self.deleted_files
+    }
+
+    /// Deletes the oldest kept parts, at least `at_least` of them (when
+    /// there are), and more while the parts and a new one would pass
+    /// `keep_bytes`; the parts deleted.
+    fn delete_oldest(&mut self, at_least: usize) -> Vec<PathBuf> {
+        let Some(keep) = self.options.keep_bytes else {
+            return Vec::new();
+        };
+        // A new part is as large as the largest so far, or the split's size.
+        let next = self
+            .kept
+            .iter()
+            .map(|(_, len)| *len)
+            .chain(self.options.split_bytes)
+            .max()
+            .unwrap_or(0);
+        let mut deleted = Vec::new();
+        while let Some((_, len)) = self.kept.front() {
+            let total: u64 = self.kept.iter().map(|(_, l)| l).sum::<u64>() + next;
+            if deleted.len() >= at_least && total <= keep {
+                break;
+            }
+            let len = *len;
+            let Some((path, _)) = self.kept.pop_front() else { break };
+            // A part already gone (removed by hand) frees its room all the same.
+            let _ = std::fs::remove_file(&path);
+            self.bytes_in_closed_files = self.bytes_in_closed_files.saturating_sub(len);
+            self.deleted_files += 1;
+            deleted.push(path);
+        }
+        deleted
     }
 
     /// Closes the chunk being filled, so that everything written so far
     /// survives the recorder being killed.
     pub fn flush(&mut self) -> Result<(), RecordingError> {
-        self.writer.flush().map_err(|source| mcap_error(&self.path, source))
+        if self.stopped {
+            return Ok(());
+        }
+        self.chunk_fill = 0;
+        match self.writer.flush() {
+            Ok(()) => {
+                self.durable_messages = self.messages;
+                self.pending_since_ns = None;
+                Ok(())
+            }
+            Err(source) => {
+                let time_ns = self.pending_since_ns.unwrap_or(0);
+                self.on_failure(mcap_error(&self.path, source), 0, time_ns)
+            }
+        }
     }
 
     /// Writes the summary and indexes and closes the file; the parts written.
     pub fn finish(mut self) -> Result<Vec<PathBuf>, RecordingError> {
-        self.writer.finish().map_err(|source| mcap_error(&self.path, source))?;
-        Ok(self.files)
+        if !self.stopped {
+            if let Err(source) = self.writer.finish() {
+                let time_ns = self.pending_since_ns.unwrap_or(0);
+                self.on_failure(mcap_error(&self.path, source), 0, time_ns)?;
+            }
+        }
+        Ok(self.files.into_iter().filter(|f| f.exists()).collect())
     }
 
     pub fn messages(&self) -> u64 {
@@ -234,20 +482,37 @@ impl RecordingWriter {
         too_big || too_long
     }
 
+    /// Closes the current part and starts the next, deleting the oldest
+    /// parts first when the recording keeps only so many bytes.
     fn next_part(&mut self) -> Result<(), RecordingError> {
+        self.writer.finish().map_err(|source| mcap_error(&self.path, source))?;
+        self.durable_messages = self.messages;
+        self.pending_since_ns = None;
+        self.chunk_fill = 0;
+        self.kept.push_back((self.path.clone(), self.writer_bytes()));
+        let deleted = self.delete_oldest(0);
+        if !deleted.is_empty() {
+            self.news.push(WriterNews::Deleted(deleted));
+        }
+        self.open_next_part()
+    }
+
+    /// Opens the next part, with every channel; the current one is closed
+    /// (or broken) and counted.
+    fn open_next_part(&mut self) -> Result<(), RecordingError> {
         let path = part_path(&self.base, &self.options, self.files.len());
         let (mut writer, file_len) = open_part(&path, &self.options)?;
         for channel in &mut self.channels {
             channel.id = add_to_file(&mut writer, &path, &channel.topic, channel.kind)?;
         }
-        let mut old = std::mem::replace(&mut self.writer, writer);
-        old.finish().map_err(|source| mcap_error(&self.path, source))?;
-        drop(old);
+        // Finished above, or broken: its Drop's finish has nothing to add.
+        drop(std::mem::replace(&mut self.writer, writer));
         self.bytes_in_closed_files += self.writer_bytes();
         self.file_len = file_len;
         self.path = path.clone();
         self.files.push(path);
         self.file_start_ns = None;
+        self.part_start_messages = self.messages;
         Ok(())
     }
 }
@@ -263,10 +528,7 @@ fn part_path(base: &Path, options: &RecordOptions, index: usize) -> PathBuf {
     base.with_file_name(format!("{stem}_{index:03}.mcap"))
 }
 
-fn open_part(
-    path: &Path,
-    options: &RecordOptions,
-) -> Result<(mcap::Writer<CountingFile>, Arc<AtomicU64>), RecordingError> {
+fn open_part(path: &Path, options: &RecordOptions) -> Result<(mcap::Writer<PartFile>, Arc<AtomicU64>), RecordingError> {
     let file = File::create(path).map_err(|source| RecordingError::Io {
         path: path.to_path_buf(),
         source,
@@ -278,10 +540,14 @@ fn open_part(
         // Compress in the recorder's own thread: worker threads (one per
         // core by default) would compete with the control loop.
         .compression_threads(0)
-        .chunk_size(Some(options.chunk_bytes))
+        // Closed by the writer at `chunk_bytes`, not by the mcap crate.
+        .chunk_size(None)
         .profile("ros2")
         .library(concat!("hydractl ", env!("CARGO_PKG_VERSION")))
-        .create(CountingFile::new(file, file_len.clone()))
+        .create(BufWriter::with_capacity(
+            256 * 1024,
+            GuardedFile::new(file, file_len.clone()),
+        ))
         .map_err(|source| mcap_error(path, source))?;
     if !options.metadata.is_empty() {
         writer
@@ -295,7 +561,7 @@ fn open_part(
 }
 
 fn add_to_file(
-    writer: &mut mcap::Writer<CountingFile>,
+    writer: &mut mcap::Writer<PartFile>,
     path: &Path,
     topic: &str,
     kind: &SampleKind,
@@ -315,39 +581,53 @@ fn mcap_error(path: &Path, source: mcap::McapError) -> RecordingError {
     }
 }
 
-/// A buffered file that knows how long it is, for splitting by size.
-struct CountingFile {
-    inner: BufWriter<File>,
+/// A file that knows how long it is (for splitting by size) and that
+/// takes no byte after a write of it failed: what a failure left in it is
+/// final, and can be read back to know what was recorded.
+struct GuardedFile {
+    file: File,
     position: u64,
     len: Arc<AtomicU64>,
+    failed: bool,
 }
 
-impl CountingFile {
+impl GuardedFile {
     fn new(file: File, len: Arc<AtomicU64>) -> Self {
         Self {
-            inner: BufWriter::with_capacity(256 * 1024, file),
+            file,
             position: 0,
             len,
+            failed: false,
         }
     }
 }
 
-impl Write for CountingFile {
+impl Write for GuardedFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.position += n as u64;
-        self.len.fetch_max(self.position, Ordering::Relaxed);
-        Ok(n)
+        if self.failed {
+            return Err(std::io::Error::other("an earlier write to this file failed"));
+        }
+        match self.file.write(buf) {
+            Ok(n) => {
+                self.position += n as u64;
+                self.len.fetch_max(self.position, Ordering::Relaxed);
+                Ok(n)
+            }
+            Err(e) => {
+                self.failed = true;
+                Err(e)
+            }
+        }
     }
 
     fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
+        self.file.flush()
     }
 }
 
-impl Seek for CountingFile {
+impl Seek for GuardedFile {
     fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
-        self.position = self.inner.seek(pos)?;
+        self.position = self.file.seek(pos)?;
         Ok(self.position)
     }
 }

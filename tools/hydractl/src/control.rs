@@ -5,7 +5,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, CommandClient, Reader, RunScope, PREFIX_ENV};
-use hydractl_samples::{code, name_str, service, source, SupervisorReply, SupervisorRequest, SupervisorStatus};
+use hydractl_samples::{
+    code, name_str, service, source, RecorderStatus, SupervisorReply, SupervisorRequest, SupervisorStatus, UNKNOWN,
+};
 use serde::Serialize;
 
 #[derive(clap::Args)]
@@ -113,6 +115,9 @@ struct ProcessView {
     variant: Option<String>,
     healthy: bool,
     restarts: u32,
+    /// A loop process: page faults since it answered its first reading.
+    page_faults_after_start: Option<u32>,
+    memory_locked: bool,
 }
 
 #[derive(Serialize)]
@@ -120,6 +125,59 @@ struct StatusView {
     running: bool,
     plant: &'static str,
     processes: Vec<ProcessView>,
+    /// The run's recording, when it records.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    recording: Option<RecordingView>,
+}
+
+/// The recorder's last word.
+#[derive(Serialize)]
+struct RecordingView {
+    messages: u64,
+    bytes: u64,
+    files: u32,
+    /// Oldest parts deleted to stay within `keep_mb`.
+    deleted_files: u32,
+    /// Samples lost because the recorder fell behind.
+    dropped: u64,
+    /// Samples received and not recorded (a full disk): from when, how many.
+    not_recorded: Option<NotRecordedView>,
+}
+
+#[derive(Serialize)]
+struct NotRecordedView {
+    samples: u64,
+    /// For this long, up to now.
+    for_last_s: f64,
+}
+
+/// The recorder's newest status, when the run records.
+fn recording_view(recorder: &Reader<RecorderStatus>, records: bool) -> Result<Option<RecordingView>> {
+    if !records {
+        return Ok(None);
+    }
+    // It says itself every 100 ms.
+    let deadline = Instant::now() + Duration::from_millis(300);
+    let status = loop {
+        if let Some(s) = recorder.latest()? {
+            break s;
+        }
+        if Instant::now() > deadline {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    Ok(Some(RecordingView {
+        messages: status.messages,
+        bytes: status.bytes,
+        files: status.files,
+        deleted_files: status.deleted_files,
+        dropped: status.dropped,
+        not_recorded: (status.unrecorded > 0).then(|| NotRecordedView {
+            samples: status.unrecorded,
+            for_last_s: hydractl_bus::clock::now_ns().saturating_sub(status.unrecorded_since_ns) as f64 * 1e-9,
+        }),
+    }))
 }
 
 /// The supervisor's view of the running stack.
@@ -134,6 +192,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
         }
     };
     let reader: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 1)?;
+    let recorder: Reader<RecorderStatus> = Reader::open(&bus, service::RECORDER_STATUS, 1)?;
     let deadline = Instant::now() + Duration::from_secs(2);
     let status = loop {
         if let Some(s) = reader.latest()? {
@@ -159,8 +218,14 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 variant: Some(name_str(&p.variant).to_owned()).filter(|v| !v.is_empty()),
                 healthy: p.healthy != 0,
                 restarts: p.restarts,
+                page_faults_after_start: Some(p.page_faults_after_start).filter(|&n| n != UNKNOWN),
+                memory_locked: p.memory_locked != 0,
             })
             .collect(),
+        recording: recording_view(
+            &recorder,
+            status.processes.iter().any(|p| name_str(&p.name) == "recorder"),
+        )?,
     };
     if args.json {
         return crate::emit(&(serde_json::to_string_pretty(&view)? + "\n"));
@@ -175,18 +240,42 @@ pub fn status(args: StatusArgs) -> Result<()> {
         other => format!("plant: {other}\n"),
     };
     text += &format!(
-        "  {:<12} {:>8} {:<10} {:<8} {:>8}\n",
-        "process", "pid", "variant", "health", "restarts"
+        "  {:<12} {:>8} {:<10} {:<8} {:>8} {:>11}\n",
+        "process", "pid", "variant", "health", "restarts", "page faults"
     );
     for p in &view.processes {
+        let faults = p.page_faults_after_start.map_or("-".to_owned(), |n| {
+            format!("{n}{}", if p.memory_locked { "" } else { " (unlocked)" })
+        });
         text += &format!(
-            "  {:<12} {:>8} {:<10} {:<8} {:>8}\n",
+            "  {:<12} {:>8} {:<10} {:<8} {:>8} {:>11}\n",
             p.name,
             p.pid,
             p.variant.as_deref().unwrap_or("-"),
             if p.healthy { "healthy" } else { "DOWN" },
-            p.restarts
+            p.restarts,
+            faults
         );
+    }
+    if let Some(r) = &view.recording {
+        text += &format!(
+            "recording: {} messages, {:.1} MB in {} file(s){}, {} dropped\n",
+            r.messages,
+            r.bytes as f64 / 1e6,
+            r.files,
+            if r.deleted_files > 0 {
+                format!(" ({} oldest deleted, keep_mb)", r.deleted_files)
+            } else {
+                String::new()
+            },
+            r.dropped
+        );
+        if let Some(n) = &r.not_recorded {
+            text += &format!(
+                "  NOT RECORDED: {} samples over the last {:.1} s (the disk is full)\n",
+                n.samples, n.for_last_s
+            );
+        }
     }
     crate::emit(&text)
 }

@@ -25,7 +25,7 @@ use hydractl_sim::{simulate, simulate_streaming, simulate_valve_steps, write_csv
     name = "hydractl",
     version,
     about = "Control stack for a hydraulic rotary actuator",
-    after_help = "Exit status: 0 success; 1 failure (the reason on stderr); 2 usage (bad flags)."
+    after_help = "Exit status: 0 success; 1 failure (the reason on stderr); 2 usage (bad flags); 3 a run whose recording is incomplete (its summary says what is missing)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -208,7 +208,24 @@ pub(crate) fn emit(text: &str) -> Result<()> {
     }
 }
 
-fn main() -> Result<()> {
+/// The exit status of a run whose recording is incomplete.
+const EXIT_RECORDING_INCOMPLETE: u8 = 3;
+
+fn main() -> std::process::ExitCode {
+    match run_command() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if e.is::<run::RecordingIncomplete>() => {
+            tracing::error!("{e}");
+            std::process::ExitCode::from(EXIT_RECORDING_INCOMPLETE)
+        }
+        Err(e) => {
+            eprintln!("Error: {e:?}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run_command() -> Result<()> {
     let cli = Cli::parse();
     let log = hydractl_config::LogConfig::default();
     let filter = hydractl_processes::logging::filter(cli.log_level.as_deref(), &log).map_err(anyhow::Error::msg)?;

@@ -108,6 +108,8 @@ struct RunSummary {
     /// The machine's CAN bus as a listener on it saw it.
     #[serde(skip_serializing_if = "Option::is_none")]
     can: Option<CanSummary>,
+    #[serde(skip)]
+    recorder: RecorderView,
 }
 
 #[derive(Serialize)]
@@ -140,6 +142,26 @@ struct RecordingReport {
     /// Sequence numbers the publishers skipped themselves (a stage that took
     /// the newest reading): in the data, not lost by the recording.
     gaps: u64,
+    /// Everything the recorder received is in the files, and it never
+    /// stopped: false makes the run exit 3.
+    complete: bool,
+    /// What never reached a file: the disk was full.
+    not_recorded: Option<NotRecorded>,
+    /// Times the disk was full.
+    disk_full: u32,
+    /// Oldest parts deleted to keep within `keep_mb` (a ring, by design).
+    deleted_files: u32,
+    /// Times the recorder itself was restarted: what it missed in between
+    /// is not counted.
+    recorder_restarts: u32,
+}
+
+#[derive(Serialize, Clone, Copy, PartialEq)]
+struct NotRecorded {
+    /// Samples received and not recorded.
+    samples: u64,
+    /// The first of them, in seconds from the run's first reading.
+    from_s: f64,
 }
 
 #[derive(Serialize)]
@@ -243,6 +265,12 @@ pub fn run(args: RunArgs) -> Result<()> {
         check_writable(path, "--record")?;
     }
     let config = Config::load_or_default(args.config.as_deref())?;
+    if args.record.is_some() && config.recording.keep_mb.is_some() && !args.split.splits() {
+        bail!(
+            "[recording] keep_mb in {} needs a split to delete: --split-size-mb or --split-duration-s",
+            config_name(&args.config)
+        );
+    }
     if let Some(can) = &config.can {
         if can.transport == hydractl_can::profile::Transport::Socketcan {
             // Said here, once, before anything starts: a process that could
@@ -277,6 +305,8 @@ pub fn run(args: RunArgs) -> Result<()> {
         _ => None,
     };
     let taps = Taps::open(&scope)?;
+    // Read apart from the taps: its last word comes as the stack stops.
+    let recorder: Reader<hydractl_samples::RecorderStatus> = Reader::open(&taps.bus, service::RECORDER_STATUS, 16)?;
     let mut command = Command::new(dir.join("supervisor"));
     if let Some(config) = &args.config {
         command.arg("--config").arg(config);
@@ -294,12 +324,21 @@ pub fn run(args: RunArgs) -> Result<()> {
         .spawn()
         .with_context(|| format!("starting {}", dir.join("supervisor").display()))?;
     let supervisor_pid = supervisor.id();
-    let outcome = watch(taps, &args, &config, supervisor_pid);
+    let outcome = watch(taps, &recorder, &args, &config, supervisor_pid);
     // The supervisor stops the loop, then lets the recorder finish its file.
     stop_child(&mut supervisor, "the supervisor", Duration::from_secs(15))?;
     let mut summary = outcome?;
     if let Some(out) = &args.record {
-        summary.recording = Some(recording_report(out, &args.split)?);
+        // Its last status, sent as it finished: what it did not record.
+        while let Some(status) = recorder.next()? {
+            summary.recorder.last = Some(status);
+        }
+        summary.recorder.restarts = summary
+            .processes
+            .iter()
+            .find(|p| p.name == "recorder")
+            .map_or(0, |p| p.restarts);
+        summary.recording = Some(recording_report(out, summary.recorder)?);
     }
     if let Some(path) = &args.summary_json {
         std::fs::write(path, serde_json::to_string_pretty(&summary)? + "\n")
@@ -307,12 +346,17 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     if let Some(r) = &summary.recording {
         eprintln!(
-            "recorded {} messages on {} channels, {} dropped by the recorder, {} skipped by publishers, to {}",
+            "recorded {} messages on {} channels, {} dropped by the recorder, {} skipped by publishers, to {}{}",
             r.messages,
             r.channels,
             r.dropped,
             r.gaps,
-            r.files.join(", ")
+            r.files.join(", "),
+            if r.deleted_files > 0 {
+                format!(" ({} oldest parts deleted to keep within keep_mb)", r.deleted_files)
+            } else {
+                String::new()
+            }
         );
     }
     if let Some(c) = &summary.can {
@@ -341,7 +385,50 @@ pub fn run(args: RunArgs) -> Result<()> {
         summary.rms_tracking_error_rad,
         summary.max_abs_tracking_error_rad,
         summary.processes.iter().map(|p| p.restarts).sum::<u32>()
-    ))
+    ))?;
+    match &summary.recording {
+        Some(r) if !r.complete => Err(RecordingIncomplete(r.what_is_missing()).into()),
+        _ => Ok(()),
+    }
+}
+
+/// The run went through, but its recording misses something: `hydractl
+/// run` exits 3, after the summary that says what.
+#[derive(Debug)]
+pub struct RecordingIncomplete(String);
+
+impl std::fmt::Display for RecordingIncomplete {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "the recording is INCOMPLETE: {}", self.0)
+    }
+}
+
+impl std::error::Error for RecordingIncomplete {}
+
+impl RecordingReport {
+    fn what_is_missing(&self) -> String {
+        let mut missing = Vec::new();
+        if let Some(n) = self.not_recorded {
+            missing.push(format!(
+                "{} samples from {:.3} s into the run on were not recorded (the disk was full {} time{})",
+                n.samples,
+                n.from_s,
+                self.disk_full,
+                if self.disk_full == 1 { "" } else { "s" }
+            ));
+        }
+        if self.recorder_restarts > 0 {
+            missing.push(format!(
+                "the recorder was restarted {} time{}, and what it missed meanwhile is not counted",
+                self.recorder_restarts,
+                if self.recorder_restarts == 1 { "" } else { "s" }
+            ));
+        }
+        if missing.is_empty() {
+            missing.push("a file of it cannot be read, or the recorder never said what it wrote".to_owned());
+        }
+        missing.join("; ")
+    }
 }
 
 /// What `run` reads of the loop, opened before the stack starts: each
@@ -375,7 +462,13 @@ impl Taps {
     }
 }
 
-fn watch(taps: Taps, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Result<RunSummary> {
+fn watch(
+    taps: Taps,
+    recorder: &Reader<hydractl_samples::RecorderStatus>,
+    args: &RunArgs,
+    config: &Config,
+    supervisor_pid: u32,
+) -> Result<RunSummary> {
     let Taps {
         bus,
         valve,
@@ -422,6 +515,7 @@ fn watch(taps: Taps, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Re
     // Each plant counts its own late commands.
     let mut late_by_source = [0u64; 2];
     let mut failure = None;
+    let mut recorder_view = RecorderView::default();
     let mut late_pdos = 0u64;
     let mut can_watch = match &config.can {
         Some(can) => {
@@ -445,7 +539,13 @@ fn watch(taps: Taps, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Re
                     }
                 }
             }
+            while let Some(status) = recorder.next()? {
+                recorder_view.last = Some(status);
+            }
             while let Some(v) = valve.next()? {
+                if recorder_view.first_reading_ns == 0 {
+                    recorder_view.first_reading_ns = v.sensor_time_ns;
+                }
                 // The valve process starting or stopping answers no reading.
                 if v.faults & hydractl_samples::fault::OFF != 0 {
                     continue;
@@ -685,6 +785,7 @@ fn watch(taps: Taps, args: &RunArgs, config: &Config, supervisor_pid: u32) -> Re
         plant: if on_simulation { "simulation" } else { "machine" },
         plant_switches,
         recording: None,
+        recorder: recorder_view,
         can: can_watch.map(|(port, stats, profile, _)| {
             let f = stats.figures();
             CanSummary {
@@ -711,58 +812,100 @@ fn above_live_line(live: bool) {
     }
 }
 
-/// Reads back the files the recorder wrote.
-fn recording_report(out: &Path, split: &hydractl_processes::SplitArgs) -> Result<RecordingReport> {
-    let files = if split.splits() {
-        let stem = out
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let dir = out
-            .parent()
-            .filter(|d| !d.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let mut parts: Vec<PathBuf> = std::fs::read_dir(dir)
-            .with_context(|| format!("listing {}", dir.display()))?
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .filter(|p| {
-                p.file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .is_some_and(|n| {
-                        n.strip_prefix(&format!("{stem}_"))
-                            .and_then(|rest| rest.strip_suffix(".mcap"))
-                            .is_some_and(|index| index.len() == 3 && index.bytes().all(|b| b.is_ascii_digit()))
-                    })
-            })
-            .collect();
-        parts.sort();
-        parts
-    } else {
-        vec![out.to_path_buf()]
+/// The recorder as it said itself: its last status, read live (a full
+/// disk keeps it out of the file), and its restarts.
+#[derive(Default, Clone, Copy)]
+struct RecorderView {
+    last: Option<hydractl_samples::RecorderStatus>,
+    restarts: u32,
+    /// The run's first reading, from which `not_recorded.from_s` counts.
+    first_reading_ns: u64,
+}
+
+/// The recording's parts beside `out`: `STEM.mcap` or `STEM_NNN.mcap`,
+/// and a restarted recorder's `STEM_restartN[_NNN].mcap`, in order.
+fn recording_files(out: &Path) -> Result<Vec<PathBuf>> {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let is_part = |rest: &str| rest.len() == 3 && rest.bytes().all(|b| b.is_ascii_digit());
+    let is_restart = |rest: &str| {
+        rest.strip_prefix("restart").is_some_and(|r| {
+            let (n, part) = r.split_once('_').unwrap_or((r, "000"));
+            !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()) && is_part(part)
+        })
     };
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("listing {}", dir.display()))?
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            name == format!("{stem}.mcap")
+                || name
+                    .strip_prefix(&format!("{stem}_"))
+                    .and_then(|rest| rest.strip_suffix(".mcap"))
+                    .is_some_and(|rest| is_part(rest) || is_restart(rest))
+        })
+        .collect();
+    // The first recorder's parts, then each restart's.
+    files.sort_by_key(|p| {
+        let name = p.to_string_lossy().into_owned();
+        (name.contains("_restart"), name)
+    });
+    Ok(files)
+}
+
+/// Reads back the files the recorder wrote, and says what is missing.
+fn recording_report(out: &Path, recorder: RecorderView) -> Result<RecordingReport> {
     let mut report = RecordingReport {
         files: Vec::new(),
         messages: 0,
         channels: 0,
         dropped: 0,
         gaps: 0,
+        complete: true,
+        not_recorded: None,
+        disk_full: 0,
+        deleted_files: 0,
+        recorder_restarts: recorder.restarts,
     };
-    for file in files {
-        let summary = hydractl_recording::summarize(&file)?;
+    for file in recording_files(out)? {
+        // A file a full disk or a killed recorder left unreadable is
+        // reported, not fatal: the rest of the recording is still there.
+        let summary = match hydractl_recording::summarize(&file) {
+            Ok(summary) => summary,
+            Err(e) => {
+                tracing::warn!("{e}");
+                report.complete = false;
+                continue;
+            }
+        };
         report.messages += summary.messages;
         report.channels = report.channels.max(summary.channels.len());
         report.gaps += summary.channels.iter().map(|c| c.missing).sum::<u64>();
-        let mut dropped = 0;
-        hydractl_recording::read_messages(&file, |m| {
-            if let Some(status) = hydractl_recording::decode::<hydractl_samples::RecorderStatus>(m) {
-                dropped = status.dropped;
-            }
-            Ok(())
-        })?;
-        report.dropped = report.dropped.max(dropped);
         report.files.push(file.display().to_string());
     }
+    if let Some(last) = recorder.last {
+        report.dropped = last.dropped;
+        report.disk_full = last.disk_full;
+        report.deleted_files = last.deleted_files;
+        if last.unrecorded > 0 {
+            report.not_recorded = Some(NotRecorded {
+                samples: last.unrecorded,
+                from_s: last.unrecorded_since_ns.saturating_sub(recorder.first_reading_ns) as f64 * 1e-9,
+            });
+        }
+    }
+    report.complete &= report.not_recorded.is_none() && recorder.restarts == 0 && recorder.last.is_some();
     Ok(report)
 }
 
