@@ -30,6 +30,13 @@ pub enum LogOutput {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(default, deny_unknown_fields)]
 pub struct RecordingConfig {
+    /// Record every run to this MCAP file (its parts beside it), as the
+    /// vehicle's flight recorder does; `hydractl run --record` comes first.
+    pub out: Option<std::path::PathBuf>,
+    /// Start a new part every this many MB (`--split-size-mb` comes first).
+    pub split_size_mb: Option<f64>,
+    /// Start a new part every this many seconds (`--split-duration-s` comes first).
+    pub split_duration_s: Option<f64>,
     /// Keep at most this many MB of split files: the oldest part is
     /// deleted before a new one would pass it, as a flight recorder does.
     /// Needs a split (`split_size_mb` or `split_duration_s`); `hydractl

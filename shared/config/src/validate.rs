@@ -208,11 +208,16 @@ impl Config {
                     reason: e.to_string(),
                 })?;
         }
-        if let Some(keep) = self.recording.keep_mb {
-            if !(keep.is_finite() && keep > 0.0) {
+        let r = &self.recording;
+        for (key, value) in [
+            ("keep_mb", r.keep_mb),
+            ("split_size_mb", r.split_size_mb),
+            ("split_duration_s", r.split_duration_s),
+        ] {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
                 return Err(ConfigError::Recording {
                     path: path.to_owned(),
-                    reason: format!("keep_mb must be a positive number of MB, got {keep}"),
+                    reason: format!("{key} must be a positive number, got {v}"),
                 });
             }
         }

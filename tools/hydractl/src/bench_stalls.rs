@@ -35,13 +35,65 @@ pub struct StallsArgs {
 /// work on it is not starved.
 const BURST: Duration = Duration::from_millis(400);
 const REST: Duration = Duration::from_millis(600);
-const WATCHED_NS: [u64; 3] = [100_000, 1_000_000, 10_000_000];
+pub const WATCHED_NS: [u64; 3] = [100_000, 1_000_000, 10_000_000];
 /// A gap this long is time taken away; a clock reading takes about 30 ns.
 const TAKEN_NS: u64 = 10_000;
+
+/// What a measurement of the loop CPU's stalls found.
+pub struct Stalls {
+    pub bursts: usize,
+    pub spun_ns: u64,
+    /// Gaps of at least each of [`WATCHED_NS`].
+    pub over: [u64; WATCHED_NS.len()],
+    /// The longest gaps, ns, longest first.
+    pub longest_ns: Vec<u64>,
+    pub taken_ns: u64,
+    /// The host's steal time meanwhile, when the kernel reports it.
+    pub stolen_ns: Option<u64>,
+    /// Device interrupts steered off the CPU, and those the kernel kept there.
+    pub steered: Option<(usize, usize)>,
+}
 
 pub fn bench(args: StallsArgs) -> Result<()> {
     let config = Config::load_or_default(args.config.as_deref())?;
     let cpu = args.cpu.or(config.timing.loop_cpu);
+    let s = measure(&config, cpu, args.duration)?;
+    let top: Vec<String> = s
+        .longest_ns
+        .iter()
+        .map(|gap| format!("{:.2}", *gap as f64 / 1e6))
+        .collect();
+    let mut where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
+    if let Some((moved, kept)) = s.steered {
+        where_ += &format!(" ({moved} device interrupts steered off it, {kept} kept there by the kernel)");
+    }
+    crate::emit(&format!(
+        "bench stalls: {where_}, SCHED_FIFO 99, {:.1} s spun in {} bursts\n\
+         gaps ≥ 0.1 ms: {}\ngaps ≥ 1 ms:   {}\ngaps ≥ 10 ms:  {}\nlongest, ms:   {}\n\
+         taken away:    {:.1} ms in gaps ≥ 10 µs\n\
+         steal time:    {} (the host's account, /proc/stat, in 10 ms ticks)\n",
+        s.spun_ns as f64 / 1e9,
+        s.bursts,
+        s.over[0],
+        s.over[1],
+        s.over[2],
+        if top.is_empty() {
+            "none".to_owned()
+        } else {
+            top.join(" ")
+        },
+        s.taken_ns as f64 / 1e6,
+        s.stolen_ns
+            .map_or("not reported by this kernel".to_owned(), |ns| format!(
+                "{:.0} ms",
+                ns as f64 / 1e6
+            )),
+    ))
+}
+
+/// Spins `duration_s` in bursts on `cpu` at SCHED_FIFO 99, with the CPU
+/// reserved as `config`'s run reserves it, and measures every gap.
+pub fn measure(config: &Config, cpu: Option<usize>, duration_s: f64) -> Result<Stalls> {
     // The computer as a run sees it.
     let timing = &config.timing;
     let (reservation, refusals) =
@@ -54,7 +106,7 @@ pub fn bench(args: StallsArgs) -> Result<()> {
         // Preemptible, the loop would measure the system's other work.
         return Err(anyhow::anyhow!("{e}")).context("bench stalls needs the CPU pinned at SCHED_FIFO 99");
     }
-    let bursts = (args.duration / BURST.as_secs_f64()).ceil().max(1.0) as usize;
+    let bursts = (duration_s / BURST.as_secs_f64()).ceil().max(1.0) as usize;
     let mut over = [0u64; WATCHED_NS.len()];
     // Kept without allocating: the spin loop measures its own delays too.
     let mut longest = Slowest::<(), 5>::default();
@@ -87,38 +139,15 @@ pub fn bench(args: StallsArgs) -> Result<()> {
         };
         std::thread::sleep(REST);
     }
-    let top: Vec<String> = longest
-        .iter()
-        .map(|(gap, ())| format!("{:.2}", *gap as f64 / 1e6))
-        .collect();
-    let mut where_ = cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
-    if let Some(steered) = &reservation.interrupts {
-        where_ += &format!(
-            " ({} device interrupts steered off it, {} kept there by the kernel)",
-            steered.moved(),
-            steered.kept_by_kernel
-        );
-    }
-    crate::emit(&format!(
-        "bench stalls: {where_}, SCHED_FIFO 99, {:.1} s spun in {bursts} bursts\n\
-         gaps ≥ 0.1 ms: {}\ngaps ≥ 1 ms:   {}\ngaps ≥ 10 ms:  {}\nlongest, ms:   {}\n\
-         taken away:    {:.1} ms in gaps ≥ 10 µs\n\
-         steal time:    {} (the host's account, /proc/stat, in 10 ms ticks)\n",
-        spun_ns as f64 / 1e9,
-        over[0],
-        over[1],
-        over[2],
-        if top.is_empty() {
-            "none".to_owned()
-        } else {
-            top.join(" ")
-        },
-        taken_ns as f64 / 1e6,
-        stolen_ns.map_or("not reported by this kernel".to_owned(), |ns| format!(
-            "{:.0} ms",
-            ns as f64 / 1e6
-        )),
-    ))
+    Ok(Stalls {
+        bursts,
+        spun_ns,
+        over,
+        longest_ns: longest.iter().map(|(gap, ())| *gap).collect(),
+        taken_ns,
+        stolen_ns,
+        steered: reservation.interrupts.as_ref().map(|s| (s.moved(), s.kept_by_kernel)),
+    })
 }
 
 /// The steal time the kernel has accounted to `cpu` (all CPUs when

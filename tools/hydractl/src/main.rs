@@ -5,6 +5,7 @@ mod bench_record;
 mod bench_stalls;
 mod can;
 mod control;
+mod doctor;
 mod ident;
 mod model;
 mod recording;
@@ -75,6 +76,10 @@ enum Command {
     /// The machine's CAN bus: a period's frame budget.
     #[command(subcommand)]
     Can(can::CanCommand),
+    /// Whether this computer can hold the config's loop: kernel, CPU,
+    /// limits, memory, CAN interfaces, binaries; pass, warn or fail with
+    /// the fix for each (exit 0 when ready, 1 when not).
+    Doctor(doctor::DoctorArgs),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -251,6 +256,7 @@ fn run_command() -> Result<()> {
         Command::Replay(args) => recording::replay(args),
         Command::Mcap(command) => recording::mcap(command),
         Command::Can(command) => can::run(command),
+        Command::Doctor(args) => doctor::doctor(args),
         Command::Bench(BenchCommand::Sim { duration, repeat }) => bench_sim(duration, repeat),
         Command::Bench(BenchCommand::Diagnose { durations, repeat }) => model::bench_diagnose(&durations, repeat),
         Command::Bench(BenchCommand::Foreign {

@@ -251,7 +251,7 @@ struct SwapSummary {
     loop_step_after: f64,
 }
 
-pub fn run(args: RunArgs) -> Result<()> {
+pub fn run(mut args: RunArgs) -> Result<()> {
     if let Some(d) = args.duration {
         if !(d.is_finite() && d >= 0.0) {
             bail!("--duration must be a finite number of seconds, got {d}");
@@ -261,15 +261,30 @@ pub fn run(args: RunArgs) -> Result<()> {
     if let Some(path) = &args.summary_json {
         check_writable(path, "--summary-json")?;
     }
-    if let Some(path) = &args.record {
-        check_writable(path, "--record")?;
-    }
     let config = Config::load_or_default(args.config.as_deref())?;
-    if args.record.is_some() && config.recording.keep_mb.is_some() && !args.split.splits() {
-        bail!(
-            "[recording] keep_mb in {} needs a split to delete: --split-size-mb or --split-duration-s",
-            config_name(&args.config)
-        );
+    // The flags first, then the config's [recording].
+    let recording = &config.recording;
+    let from_config = args.record.is_none() && recording.out.is_some();
+    args.record = args.record.take().or_else(|| recording.out.clone());
+    args.split.split_size_mb = args.split.split_size_mb.or(recording.split_size_mb);
+    args.split.split_duration_s = args.split.split_duration_s.or(recording.split_duration_s);
+    args.split.keep_mb = args.split.keep_mb.or(recording.keep_mb);
+    if let Some(path) = &args.record {
+        if from_config {
+            if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty() && !d.exists()) {
+                std::fs::create_dir_all(dir).with_context(|| {
+                    format!(
+                        "[recording] out in {}: creating {}",
+                        config_name(&args.config),
+                        dir.display()
+                    )
+                })?;
+            }
+        }
+        check_writable(path, if from_config { "[recording] out" } else { "--record" })?;
+        if args.split.keep_mb.is_some() && !args.split.splits() {
+            bail!("keep_mb needs a split to delete: --split-size-mb or --split-duration-s (or [recording] split_size_mb, split_duration_s)");
+        }
     }
     if let Some(can) = &config.can {
         if can.transport == hydractl_can::profile::Transport::Socketcan {
