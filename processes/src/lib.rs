@@ -46,6 +46,10 @@ pub struct RecordArgs {
     /// The MCAP file to write.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// With keep_mb: earlier runs' recordings beside `out` whose names
+    /// start with `RING-` belong to the same ring, oldest deleted first.
+    #[arg(long, hide = true, value_name = "RING")]
+    pub ring: Option<String>,
     #[command(flatten)]
     pub split: SplitArgs,
 }

@@ -32,11 +32,16 @@ fn main() -> Result<()> {
     if keep_mb.is_some() && !record.split.splits() {
         anyhow::bail!("recorder: keep_mb needs a split to delete: --split-size-mb or --split-duration-s");
     }
+    let adopt = match (&record.ring, keep_mb) {
+        (Some(ring), Some(_)) => earlier_in_ring(&out, ring),
+        _ => Vec::new(),
+    };
     let options = RecordOptions {
         split_bytes: record.split.split_size_mb.map(|mb| (mb * 1e6) as u64),
         split_seconds: record.split.split_duration_s,
         metadata,
         keep_bytes: keep_mb.map(|mb| (mb * 1e6) as u64),
+        adopt,
         ..RecordOptions::default()
     };
     let writer = RecordingWriter::create(&out, options).with_context(|| format!("recorder: {}", out.display()))?;
@@ -122,4 +127,34 @@ fn say(news: &WriterNews, recorder: &Recorder) {
             paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
         ),
     }
+}
+
+/// Earlier runs' recordings beside `out` in the ring `ring` (`RING-*.mcap`),
+/// oldest first: their names carry their start times.
+fn earlier_in_ring(out: &std::path::Path, ring: &str) -> Vec<std::path::PathBuf> {
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    let this = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut earlier: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
+        .map(|entries| {
+            entries
+                .filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| {
+                    let name = p
+                        .file_name()
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default();
+                    name.starts_with(&format!("{ring}-")) && name.ends_with(".mcap") && !name.starts_with(&this)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    earlier.sort();
+    earlier
 }

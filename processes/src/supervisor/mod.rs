@@ -114,6 +114,7 @@ impl Supervisor {
             child: Supervised::new("recorder", &dir, config_path.clone()),
             split: args.record.split.clone(),
             out: out.clone(),
+            ring: args.record.ring.clone(),
         });
         let count = children.len();
         Ok(Self {

@@ -17,6 +17,8 @@ pub(super) struct RecorderChild {
     pub(super) child: Supervised,
     pub(super) split: SplitArgs,
     pub(super) out: PathBuf,
+    /// The ring of earlier runs' recordings it belongs to.
+    pub(super) ring: Option<String>,
 }
 
 impl RecorderChild {
@@ -25,7 +27,7 @@ impl RecorderChild {
     /// the run, having said why on stderr.
     pub(super) fn start(&mut self, bus: &Bus, scope: &RunScope) -> Result<()> {
         let ready: Reader<RecorderStatus> = Reader::open(bus, service::RECORDER_STATUS, 4)?;
-        self.child.spawn(scope, &self.split.recorder_args(&self.out)?)?;
+        self.child.spawn(scope, &self.recorder_args(&self.out)?)?;
         let deadline = Instant::now() + Duration::from_secs(10);
         while Instant::now() < deadline {
             if ready.latest()?.is_some() {
@@ -42,12 +44,20 @@ impl RecorderChild {
         bail!("the recorder did not start within 10 s")
     }
 
+    fn recorder_args(&self, out: &Path) -> Result<Vec<String>> {
+        let mut args = self.split.recorder_args(out)?;
+        if let Some(ring) = &self.ring {
+            args.extend(["--ring".to_owned(), ring.clone()]);
+        }
+        Ok(args)
+    }
+
     /// A restarted recorder writes a new file beside the first:
     /// `STEM_restartN.mcap`, so that nothing recorded is overwritten.
     pub(super) fn restart(&mut self, scope: &RunScope) -> Result<()> {
         let n = self.child.restarts + 1;
         let out = restart_file(&self.out, n);
-        self.child.spawn(scope, &self.split.recorder_args(&out)?)?;
+        self.child.spawn(scope, &self.recorder_args(&out)?)?;
         self.child.restarts = n;
         Ok(())
     }

@@ -29,6 +29,9 @@ pub struct RecordOptions {
     /// When splitting: keep at most this many bytes of parts, deleting the
     /// oldest before a new part would pass it (a flight recorder's ring).
     pub keep_bytes: Option<u64>,
+    /// Earlier recordings in the same ring, oldest first: deleted before
+    /// this one's parts.
+    pub adopt: Vec<PathBuf>,
 }
 
 impl Default for RecordOptions {
@@ -40,6 +43,7 @@ impl Default for RecordOptions {
             zstd_level: 3,
             metadata: BTreeMap::new(),
             keep_bytes: None,
+            adopt: Vec::new(),
         }
     }
 }
@@ -148,6 +152,11 @@ impl RecordingWriter {
     pub fn create(path: &Path, options: RecordOptions) -> Result<Self, RecordingError> {
         let first = part_path(path, &options, 0);
         let (writer, file_len) = open_part(&first, &options)?;
+        let kept = options
+            .adopt
+            .iter()
+            .filter_map(|p| Some((p.clone(), std::fs::metadata(p).ok()?.len())))
+            .collect();
         Ok(Self {
             base: path.to_path_buf(),
             options,
@@ -168,7 +177,7 @@ impl RecordingWriter {
             unrecorded: Unrecorded::default(),
             first_ns: None,
             stopped: false,
-            kept: VecDeque::new(),
+            kept,
             deleted_files: 0,
             news: Vec::new(),
         })

@@ -262,10 +262,29 @@ pub fn run(mut args: RunArgs) -> Result<()> {
         check_writable(path, "--summary-json")?;
     }
     let config = Config::load_or_default(args.config.as_deref())?;
+    if let Some(can) = &config.can {
+        if can.transport == hydractl_can::profile::Transport::Socketcan {
+            // Said here, once, before anything starts: a process that could
+            // not open it would only be restarted again and again.
+            hydractl_bus::can::SocketCanPort::open(&can.interface, &[])
+                .with_context(|| format!("the machine's CAN bus ([can] in {})", config_name(&args.config)))?;
+        }
+    }
     // The flags first, then the config's [recording].
     let recording = &config.recording;
     let from_config = args.record.is_none() && recording.out.is_some();
-    args.record = args.record.take().or_else(|| recording.out.clone());
+    // Each run of the config's recording its own file, named by its start,
+    // in one ring with the earlier runs'.
+    let mut ring = None;
+    args.record = args.record.take().or_else(|| {
+        let out = recording.out.as_ref()?;
+        let stem = out.file_stem()?.to_string_lossy().into_owned();
+        let started = humantime::format_rfc3339_seconds(std::time::SystemTime::now())
+            .to_string()
+            .replace(':', "");
+        ring = Some(stem.clone());
+        Some(out.with_file_name(format!("{stem}-{started}.mcap")))
+    });
     args.split.split_size_mb = args.split.split_size_mb.or(recording.split_size_mb);
     args.split.split_duration_s = args.split.split_duration_s.or(recording.split_duration_s);
     args.split.keep_mb = args.split.keep_mb.or(recording.keep_mb);
@@ -284,14 +303,6 @@ pub fn run(mut args: RunArgs) -> Result<()> {
         check_writable(path, if from_config { "[recording] out" } else { "--record" })?;
         if args.split.keep_mb.is_some() && !args.split.splits() {
             bail!("keep_mb needs a split to delete: --split-size-mb or --split-duration-s (or [recording] split_size_mb, split_duration_s)");
-        }
-    }
-    if let Some(can) = &config.can {
-        if can.transport == hydractl_can::profile::Transport::Socketcan {
-            // Said here, once, before anything starts: a process that could
-            // not open it would only be restarted again and again.
-            hydractl_bus::can::SocketCanPort::open(&can.interface, &[])
-                .with_context(|| format!("the machine's CAN bus ([can] in {})", config_name(&args.config)))?;
         }
     }
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
@@ -328,6 +339,9 @@ pub fn run(mut args: RunArgs) -> Result<()> {
     }
     if let Some(out) = &args.record {
         command.args(args.split.recorder_args(out)?);
+        if let Some(ring) = &ring {
+            command.args(["--ring", ring]);
+        }
     }
     // Its own process group: a terminal's Ctrl-C reaches only us, and we
     // stop the supervisor, which stops the loop in order.
