@@ -102,12 +102,22 @@ fn main() -> Result<()> {
 /// Says, once, what the writer did on its own.
 fn say(news: &WriterNews, recorder: &Recorder) {
     let since = |ns: u64| format!("{:.3} s into the recording", recorder.seconds_in(ns));
+    // What the failure took with it: the samples of the chunk it broke.
+    let lost_since = |lost: u64, ns: u64| match lost {
+        0 => format!("nothing before {} is lost", since(ns)),
+        _ => format!("{lost} samples since {} are lost", since(ns)),
+    };
     match news {
-        WriterNews::Stopped { path, lost, since_ns, why } => tracing::error!(
+        WriterNews::Stopped {
+            path,
+            lost,
+            since_ns,
+            why,
+        } => tracing::error!(
             unrecorded = lost,
-            "{}: {why}: the disk is full; recording STOPS here: {lost} samples since {} are lost, and every later one is counted, not recorded",
+            "{}: {why}: the disk is full; recording STOPS here: {}, and every later sample is counted, not recorded",
             path.display(),
-            since(*since_ns)
+            lost_since(*lost, *since_ns)
         ),
         WriterNews::Rotated {
             path,
@@ -116,15 +126,23 @@ fn say(news: &WriterNews, recorder: &Recorder) {
             deleted,
         } => tracing::warn!(
             unrecorded = lost,
-            "the disk is full: {lost} samples since {} are lost; deleted the oldest part{} ({}) and recording goes on in {}",
-            since(*since_ns),
+            "the disk is full: {}; deleted the oldest part{} ({}) and recording goes on in {}",
+            lost_since(*lost, *since_ns),
             if deleted.len() == 1 { "" } else { "s" },
-            deleted.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
+            deleted
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
             path.display()
         ),
         WriterNews::Deleted(paths) => tracing::info!(
             "keeping the recording within keep_mb: deleted {}",
-            paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+            paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
         ),
     }
 }

@@ -125,6 +125,9 @@ pub struct RecordingWriter {
     pending_since_ns: Option<u64>,
     /// Uncompressed bytes in the chunk being filled.
     chunk_fill: u64,
+    /// File bytes per uncompressed byte in the last closed chunk: what the
+    /// chunk being filled will take once it reaches the file.
+    compression: f64,
     unrecorded: Unrecorded,
     /// The log time of the first message received.
     first_ns: Option<u64>,
@@ -174,6 +177,7 @@ impl RecordingWriter {
             part_start_messages: 0,
             pending_since_ns: None,
             chunk_fill: 0,
+            compression: 1.0,
             unrecorded: Unrecorded::default(),
             first_ns: None,
             stopped: false,
@@ -429,9 +433,11 @@ impl RecordingWriter {
         if self.stopped {
             return Ok(());
         }
+        let (fill, before) = (self.chunk_fill, self.writer_bytes());
         self.chunk_fill = 0;
         match self.writer.flush() {
             Ok(()) => {
+                self.learn_compression(fill, before);
                 self.durable_messages = self.messages;
                 self.pending_since_ns = None;
                 Ok(())
@@ -479,11 +485,19 @@ impl RecordingWriter {
             .join(", ")
     }
 
+    /// After a chunk of `fill` bytes closed with the file at `before`.
+    fn learn_compression(&mut self, fill: u64, before: u64) {
+        if fill > 0 {
+            self.compression = self.writer_bytes().saturating_sub(before) as f64 / fill as f64;
+        }
+    }
+
     fn split_due(&self, time_ns: u64) -> bool {
-        let too_big = self
-            .options
-            .split_bytes
-            .is_some_and(|limit| self.writer_bytes() >= limit);
+        // A chunk reaches the file only when it closes, a second's worth
+        // at a time: count the open one as it will be written, or a part
+        // outgrows its size by that much (and a ring keeps one part).
+        let part_bytes = self.writer_bytes() + (self.chunk_fill as f64 * self.compression) as u64;
+        let too_big = self.options.split_bytes.is_some_and(|limit| part_bytes >= limit);
         let too_long = match (self.options.split_seconds, self.file_start_ns) {
             (Some(limit), Some(start)) => time_ns.saturating_sub(start) as f64 * 1e-9 >= limit,
             _ => false,
@@ -494,7 +508,9 @@ impl RecordingWriter {
     /// Closes the current part and starts the next, deleting the oldest
     /// parts first when the recording keeps only so many bytes.
     fn next_part(&mut self) -> Result<(), RecordingError> {
+        let (fill, before) = (self.chunk_fill, self.writer_bytes());
         self.writer.finish().map_err(|source| mcap_error(&self.path, source))?;
+        self.learn_compression(fill, before);
         self.durable_messages = self.messages;
         self.pending_since_ns = None;
         self.chunk_fill = 0;

@@ -170,6 +170,34 @@ fn splitting_by_size_and_by_duration_makes_parts_that_each_read_alone() {
 }
 
 #[test]
+fn a_part_split_by_size_stays_near_its_size_with_chunks_larger_than_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let limit = 100_000u64;
+    // The recorder's chunks (512 kB before compression) hold more than a
+    // part: the open chunk counts as it will be written.
+    let parts = record(
+        &dir.path().join("run.mcap"),
+        20_000,
+        RecordOptions {
+            split_bytes: Some(limit),
+            ..RecordOptions::default()
+        },
+    );
+    let sizes: Vec<u64> = parts
+        .iter()
+        .map(|p| std::fs::metadata(p).expect("part").len())
+        .collect();
+    assert!(parts.len() >= 3, "{sizes:?}");
+    // The first part guesses no compression; after it, each lands near its size.
+    for size in &sizes[1..sizes.len() - 1] {
+        assert!(
+            (limit * 7 / 10..=limit * 13 / 10).contains(size),
+            "parts of {sizes:?} bytes for a split at {limit}"
+        );
+    }
+}
+
+#[test]
 fn a_file_cut_short_reads_up_to_its_last_whole_chunk() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("killed.mcap");
@@ -236,4 +264,44 @@ fn bad_files_are_named() {
     let s = w.add_channel(service::SENSOR, &SensorSample::KIND).expect("channel");
     let e = w.write_sample(s, &valve(0)).expect_err("wrong type");
     assert!(e.to_string().contains(service::SENSOR), "{e}");
+}
+
+#[test]
+fn a_ring_deletes_the_oldest_parts_earlier_runs_first_and_keeps_within_its_limit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // An earlier run's parts in the same ring, 40 kB each.
+    let earlier: Vec<std::path::PathBuf> = (0..3)
+        .map(|i| {
+            let p = dir.path().join(format!("run-2026-11-24T100000Z_00{i}.mcap"));
+            std::fs::write(&p, vec![0u8; 40_000]).expect("earlier part");
+            p
+        })
+        .collect();
+    let keep = 200_000;
+    let options = RecordOptions {
+        split_bytes: Some(30_000),
+        // Small chunks, so that the parts split near their size.
+        chunk_bytes: 16 * 1024,
+        keep_bytes: Some(keep),
+        adopt: earlier.clone(),
+        ..RecordOptions::default()
+    };
+    let kept = record(&dir.path().join("run-2026-11-24T110000Z.mcap"), 20_000, options);
+    assert!(earlier.iter().all(|p| !p.exists()), "the earlier run's parts go first");
+    let on_disk: u64 = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .filter_map(Result::ok)
+        .map(|e| e.metadata().expect("meta").len())
+        .sum();
+    assert!(on_disk <= keep, "{on_disk} bytes kept, over {keep}");
+    assert!(kept.len() >= 3, "{kept:?}");
+    // The newest part holds the end, whole.
+    let newest = summarize(kept.last().expect("a part")).expect("readable");
+    assert_eq!(newest.truncated, None);
+    let valve = newest
+        .channels
+        .iter()
+        .find(|c| c.topic == service::VALVE)
+        .expect("valve");
+    assert_eq!(valve.last_seq, 19_999);
 }

@@ -519,14 +519,26 @@ fn stale_ipc_files(host: &Host) -> Vec<String> {
             return Vec::new();
         }
     }
-    ["/dev/shm", "/tmp/iceoryx2"]
-        .iter()
-        .filter_map(|dir| std::fs::read_dir(host.path(dir)).ok())
+    // iceoryx2 keeps its node counter (`….global_mgmt`) and its empty
+    // folders from run to run: not a killed run's.
+    let segments = std::fs::read_dir(host.path("/dev/shm"))
+        .into_iter()
         .flatten()
         .filter_map(Result::ok)
         .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|name| name.starts_with(&prefix))
-        .collect()
+        .filter(|name| name.starts_with(&prefix) && !name.ends_with(".global_mgmt"));
+    let mut stale: Vec<String> = segments.collect();
+    let mut folders = vec![host.path("/tmp/iceoryx2").join(&prefix)];
+    while let Some(folder) = folders.pop() {
+        for entry in std::fs::read_dir(&folder).into_iter().flatten().filter_map(Result::ok) {
+            match entry.file_type() {
+                Ok(t) if t.is_dir() => folders.push(entry.path()),
+                Ok(_) => stale.push(entry.path().display().to_string()),
+                Err(_) => {}
+            }
+        }
+    }
+    stale
 }
 
 fn can_interfaces(host: &Host, config: &Config) -> Check {

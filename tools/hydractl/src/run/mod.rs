@@ -369,6 +369,10 @@ pub fn run(mut args: RunArgs) -> Result<()> {
             .map_or(0, |p| p.restarts);
         summary.recording = Some(recording_report(out, summary.recorder)?);
     }
+    // Our last port closed, nothing of the run is alive: what the
+    // supervisor could not remove while we still read is removed now.
+    drop(recorder);
+    scope.clean_stale()?;
     if let Some(path) = &args.summary_json {
         std::fs::write(path, serde_json::to_string_pretty(&summary)? + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
