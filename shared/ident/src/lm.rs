@@ -9,8 +9,10 @@ pub struct LmOptions {
     pub max_iterations: usize,
     /// Forward-difference step, in the parameters' own (scaled) units.
     pub difference_step: f64,
-    /// Stop when an iteration lowers the cost by less than this fraction.
+    /// Stop when this many iterations in a row lower the cost by less than
+    /// `tolerance` of it: one small gain may be a bend of the valley.
     pub tolerance: f64,
+    pub small_gains_to_stop: usize,
 }
 
 impl Default for LmOptions {
@@ -19,6 +21,7 @@ impl Default for LmOptions {
             max_iterations: 30,
             difference_step: 1e-4,
             tolerance: 1e-6,
+            small_gains_to_stop: 3,
         }
     }
 }
@@ -29,6 +32,11 @@ pub struct LmResult {
     /// Sum of squared residuals at `params`.
     pub cost: f64,
     pub iterations: usize,
+    /// Whether it stopped for want of progress, not of iterations.
+    pub converged: bool,
+    /// JᵀJ at the last Jacobian, in the scaled parameters: with the noise
+    /// level, the parameters' covariance.
+    pub normal_matrix: DMatrix<f64>,
 }
 
 pub fn sum_of_squares(r: &[f64]) -> f64 {
@@ -57,6 +65,9 @@ pub fn minimize(
     let mut cost = sum_of_squares(&current);
     let mut lambda = 1e-2;
     let mut iterations = 0;
+    let mut small_gains = 0;
+    let mut converged = p == 0;
+    let mut normal_matrix = DMatrix::zeros(p, p);
     while iterations < options.max_iterations && p > 0 {
         iterations += 1;
         let mut jacobian = DMatrix::zeros(current.len(), p);
@@ -82,6 +93,7 @@ pub fn minimize(
         let r = DVector::from_column_slice(&current);
         let jt = jacobian.transpose();
         let jtj = &jt * &jacobian;
+        normal_matrix.copy_from(&jtj);
         let gradient = &jt * &r;
         let mut improved = false;
         for _ in 0..10 {
@@ -101,16 +113,21 @@ pub fn minimize(
                     let gain = cost - new_cost;
                     theta = candidate;
                     current = r_new;
-                    let converged = gain < options.tolerance * cost;
+                    small_gains = if gain < options.tolerance * cost {
+                        small_gains + 1
+                    } else {
+                        0
+                    };
                     cost = new_cost;
                     lambda = (lambda / 5.0).max(1e-9);
-                    improved = !converged;
+                    improved = small_gains < options.small_gains_to_stop.max(1);
                     break;
                 }
             }
             lambda *= 10.0;
         }
         if !improved {
+            converged = true;
             break;
         }
     }
@@ -118,6 +135,8 @@ pub fn minimize(
         params: theta,
         cost,
         iterations,
+        converged,
+        normal_matrix,
     })
 }
 

@@ -191,6 +191,10 @@ enum BenchCommand {
         /// "significant", "fitted", "seconds"}]}]}.
         #[arg(long)]
         json: bool,
+        /// Also write each plant's data to DIR/<case>-<seed>.csv
+        /// (`t,u,p_a,p_b,theta`), for `model diagnose` and other tools.
+        #[arg(long, value_name = "DIR")]
+        save_data: Option<std::path::PathBuf>,
     },
     /// Sensor-to-valve latency of the five stages over iceoryx2 between
     /// processes, over UDP loopback between processes, and as function calls.
@@ -265,7 +269,8 @@ fn run_command() -> Result<()> {
             seed,
             effects,
             json,
-        }) => model::bench_foreign(plants, duration, seed, &effects, json),
+            save_data,
+        }) => model::bench_foreign(plants, duration, seed, &effects, json, save_data.as_deref()),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
         Command::Bench(BenchCommand::Record(args)) => bench_record::bench(args),
         Command::Bench(BenchCommand::Stalls(args)) => bench_stalls::bench(args),

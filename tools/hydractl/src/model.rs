@@ -235,9 +235,15 @@ pub fn diagnosis_table(diagnosis: &greybox::Diagnosis) -> String {
         .map(|(output, fit)| format!("{output} {:.4}", 1.0 - fit / 100.0))
         .collect();
     let mut text = format!(
-        "baseline: validation NRMSE {:.4}, the RMS of the outputs' ({})\n\n{:<18} {:<10} {:>8} {:>8} {:>6}  {}\n",
+        "baseline, refitted as hard as each candidate: validation NRMSE {:.4}, the RMS of the outputs' ({})\n",
         diagnosis.baseline.validation_nrmse,
-        per_output.join(", "),
+        per_output.join(", ")
+    );
+    for pair in &diagnosis.baseline.uncertainty.inseparable {
+        text += &format!("baseline: {pair}\n");
+    }
+    text += &format!(
+        "\n{:<18} {:<10} {:>8} {:>8} {:>6}  {}\n",
         "effect",
         "output",
         "before",
@@ -349,6 +355,21 @@ pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
     emit(&text)
 }
 
+/// A foreign plant's data as the model tools read it.
+fn save_foreign(path: &std::path::Path, data: &hydractl_sim::foreign::ForeignData) -> Result<()> {
+    let mut writer = csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
+    writer.write_record(["t", "u", "p_a", "p_b", "theta"])?;
+    for k in 0..data.t.len() {
+        writer.write_record(
+            [data.t[k], data.u[k], data.p_a_bar[k], data.p_b_bar[k], data.theta[k]].map(|v| v.to_string()),
+        )?;
+    }
+    writer
+        .flush()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
 /// One foreign plant diagnosed.
 #[derive(serde::Serialize)]
 struct ForeignRun {
@@ -378,7 +399,17 @@ struct ForeignCase {
 }
 
 /// `bench foreign`: diagnose on plants simulated apart from the model.
-pub fn bench_foreign(plants: usize, duration: f64, seed: u64, only: &[String], json: bool) -> Result<()> {
+pub fn bench_foreign(
+    plants: usize,
+    duration: f64,
+    seed: u64,
+    only: &[String],
+    json: bool,
+    save_data: Option<&std::path::Path>,
+) -> Result<()> {
+    if let Some(dir) = save_data {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     use hydractl_sim::foreign::{foreign_plant, Hidden};
     let mut all_cases: Vec<Option<Hidden>> = vec![None];
     all_cases.extend(Hidden::all().into_iter().map(Some));
@@ -404,6 +435,9 @@ pub fn bench_foreign(plants: usize, duration: f64, seed: u64, only: &[String], j
     let diagnose_one = |_case: usize, hidden: Option<Hidden>, i: usize| -> Result<ForeignRun> {
         let plant_seed = plant_seed(hidden, i);
         let data = foreign_plant(plant_seed, hidden, duration);
+        if let Some(dir) = save_data {
+            save_foreign(&dir.join(format!("{}-{plant_seed}.csv", name(&hidden))), &data)?;
+        }
         let dataset = Dataset::from_columns(
             "foreign",
             vec![

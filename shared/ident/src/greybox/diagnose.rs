@@ -1,30 +1,48 @@
-//! Diagnosis: try every effect of the catalog, refit, and rank the effects
-//! by the validation error they remove, penalized for the parameters they add.
+//! Diagnosis: try every effect of the catalog, refit, and judge each by a
+//! paired test on held-out data.
+//!
+//! The baseline and every candidate of a part are fitted alike: from the
+//! same starts, under the same loss, to convergence. An effect is called
+//! significant when, segment by segment of the validation data (the 0.5 s
+//! shooting segments, each started afresh from the measurements, so that
+//! their errors are close to independent), it lowers its output's squared
+//! error by more than chance would: a one-sided paired t-test at α = 0.01
+//! shared among the effects tried (Bonferroni), scale-free by construction.
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 
 use hydractl_plant::EffectKind;
+use rayon::prelude::*;
 use serde::Serialize;
+use statrs::distribution::{ContinuousCDF, StudentsT};
 
-use super::fit::{fit, fit_baseline, FitOptions};
-use super::{Model, ModelError, Part, Signals};
+use super::fit::{fit_baseline, fit_effect, part_loss, refit_part, FitOptions, Uncertainty};
+use super::{Model, ModelError, Part, Prediction, Signals};
 
-/// An effect must remove at least this fraction of its output's validation
-/// NRMSE, after the penalty, to be called significant.
-pub const SIGNIFICANT_REDUCTION: f64 = 0.15;
-/// ... and at least this much of it in absolute terms: an encoder's own
-/// resolution, for instance, halves a near-perfect model's tiny angle error
-/// without being a missing effect.
-pub const SIGNIFICANT_ABSOLUTE_REDUCTION: f64 = 0.005;
-/// The penalty per parameter the effect adds, as a fraction of the NRMSE.
-pub const PENALTY_PER_PARAMETER: f64 = 0.01;
+/// The family-wise false-alarm rate of a diagnosis: the chance that an
+/// effect is called significant on data that lacks all of them.
+pub const FAMILY_ALPHA: f64 = 0.01;
+
+/// An encoder whose step is under this share of the angle's spread is the
+/// sensor's resolution, not a missing effect: modelling its staircase
+/// removes a consistent, and so statistically significant, sliver of a
+/// good model's angle error, and changes nothing a control engineer would
+/// act on.
+pub const RESOLUTION_SHARE: f64 = 0.05;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct Baseline {
-    /// The RMS of the outputs' validation NRMSEs (`p_a`, `p_b`, `theta`).
+    /// The RMS of the three outputs' validation NRMSEs (`p_a`, `p_b`,
+    /// `theta`): one figure for the model as a whole. `model fit` prints
+    /// each output's; they are in `validation_nrmse_by_output`.
     pub validation_nrmse: f64,
+    /// Validation NRMSE per output (`p_a`, `p_b`, `pressures`, `theta`).
+    pub validation_nrmse_by_output: BTreeMap<String, f64>,
     /// Fit per output, percent: 100 (1 − NRMSE).
     pub fit_percent: BTreeMap<String, f64>,
+    /// Its parameters' standard deviations, and the pairs the data cannot separate.
+    pub uncertainty: Uncertainty,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -35,9 +53,21 @@ pub struct Candidate {
     pub validation_nrmse_after: f64,
     pub params: BTreeMap<String, f64>,
     pub significant: bool,
+    /// The statistic and its threshold, then what the data shows, in words.
     pub evidence: String,
-    /// Fraction of the output's NRMSE removed, less the parameter penalty: the rank.
+    /// Fraction of the output's validation NRMSE removed: the rank among
+    /// the significant, then among the rest.
     pub score: f64,
+    /// The paired t statistic over the validation segments.
+    pub statistic: f64,
+    /// The one-sided t quantile it must pass (α shared by the effects tried).
+    pub threshold: f64,
+    /// Validation segments compared.
+    pub segments: usize,
+    /// Their effective number, for their autocorrelation: the test's n.
+    pub effective_segments: f64,
+    /// The fitted parameters' standard deviations and inseparable pairs.
+    pub uncertainty: Uncertainty,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -54,73 +84,163 @@ pub struct Diagnosis {
 
 pub(crate) const OUTPUTS: [&str; 3] = ["p_a", "p_b", "theta"];
 
-/// Diagnoses `model` (or a baseline fitted here when `None`) on `signals`.
+/// Diagnoses `model` (or a baseline fitted here from the default prior
+/// when `None`) on `signals`.
 pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -> Result<Diagnosis, ModelError> {
-    let base = match model {
+    let start = match model {
         Some(m) => m.clone(),
         None => fit_baseline(signals, &hydractl_plant::PlantParams::default(), options)?,
     };
+    // Each part refitted as hard as its candidates will be: the same
+    // starts, the loss they share, to convergence.
+    let parts = [Part::Hydraulic, Part::Mechanical];
+    let losses = [
+        part_loss(signals, &start, Part::Hydraulic, options)?,
+        part_loss(signals, &start, Part::Mechanical, options)?,
+    ];
+    let mut base = start.clone();
+    let mut base_costs = [0.0; 2];
+    let mut uncertainty = Uncertainty::default();
+    for (i, part) in parts.iter().enumerate() {
+        let (refit, fitted) = refit_part(signals, &base, *part, options, Some(losses[i]))?;
+        base = refit;
+        base_costs[i] = fitted.cost;
+        uncertainty.std.extend(fitted.uncertainty.std);
+        uncertainty.inseparable.extend(fitted.uncertainty.inseparable);
+    }
     let base_effects = base.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
-    let before = super::fit::validation_nrmse(&base.plant, &base_effects, signals, validation.clone());
+    let before_prediction = super::predict(&base.plant, &base_effects, signals, validation.clone());
+    let before = super::fit::nrmse_by_output(signals, &before_prediction, validation.clone());
     let fit_percent: BTreeMap<String, f64> = OUTPUTS
         .iter()
         .map(|o| ((*o).to_owned(), 100.0 * (1.0 - before[*o])))
         .collect();
     let overall = (OUTPUTS.iter().map(|o| before[*o].powi(2)).sum::<f64>() / OUTPUTS.len() as f64).sqrt();
+    let kinds: Vec<EffectKind> = EffectKind::ALL
+        .iter()
+        .copied()
+        .filter(|k| !base.effects.0.contains_key(k.name()))
+        .collect();
+    let tried = kinds.len().max(1);
+    // The candidates are independent: one per core.
+    let judged: Vec<Result<(Candidate, Model), ModelError>> = kinds
+        .par_iter()
+        .map(|kind| {
+            let part = Part::of(*kind);
+            let i = parts.iter().position(|p| *p == part).unwrap_or(0);
+            let (mut refit, fitted) = fit_effect(signals, &base, *kind, options, losses[i])?;
+            // Under the same loss from the same starts, a candidate that
+            // ends no lower than the baseline found nothing the baseline
+            // lacks: it is the baseline, and can never beat it.
+            let found_nothing = fitted.cost >= base_costs[i];
+            let after_prediction = if found_nothing {
+                before_prediction.clone()
+            } else {
+                super::predict(&refit.plant, &refit.effects()?, signals, validation.clone())
+            };
+            let after = super::fit::nrmse_by_output(signals, &after_prediction, validation.clone());
+            if found_nothing {
+                if let Some(last) = refit.history.last_mut() {
+                    last.validation_nrmse = before.clone();
+                }
+            }
+            let output = part.output();
+            let test = paired_test(
+                signals,
+                part,
+                &before_prediction,
+                &after_prediction,
+                validation.clone(),
+                tried,
+            );
+            let (nrmse_before, nrmse_after) = (before[output], after[output]);
+            let score = if nrmse_before > 0.0 && nrmse_after.is_finite() {
+                1.0 - nrmse_after / nrmse_before
+            } else {
+                f64::NEG_INFINITY
+            };
+            let params = refit.effects.0.get(kind.name()).cloned().unwrap_or_default();
+            let resolution = resolution_share(*kind, &params, signals, validation.clone());
+            let not_itself = not_itself(*kind, &params, signals, &refit);
+            let significant = !found_nothing
+                && test.statistic > test.threshold
+                && nrmse_after < nrmse_before
+                && resolution.is_none_or(|share| share >= RESOLUTION_SHARE)
+                && not_itself.is_none();
+            let evidence = evidence(
+                *kind,
+                &params,
+                signals,
+                &refit,
+                Judgement {
+                    before: nrmse_before,
+                    after: nrmse_after,
+                    significant,
+                    test,
+                    found_nothing,
+                    resolution,
+                    not_itself,
+                },
+            );
+            let prefix = format!("{}.", kind.name());
+            let uncertainty = Uncertainty {
+                std: fitted
+                    .uncertainty
+                    .std
+                    .iter()
+                    .filter_map(|(k, v)| k.strip_prefix(&prefix).map(|key| (key.to_owned(), *v)))
+                    .collect(),
+                inseparable: fitted.uncertainty.inseparable,
+            };
+            Ok((
+                Candidate {
+                    effect: kind.name().to_owned(),
+                    output: output.to_owned(),
+                    validation_nrmse_before: nrmse_before,
+                    validation_nrmse_after: nrmse_after,
+                    params,
+                    significant,
+                    evidence,
+                    score,
+                    statistic: test.statistic,
+                    threshold: test.threshold,
+                    segments: test.segments,
+                    effective_segments: test.effective,
+                    uncertainty,
+                },
+                refit,
+            ))
+        })
+        .collect();
     let mut candidates = Vec::new();
     let mut fitted = BTreeMap::new();
-    for kind in EffectKind::ALL {
-        if base.effects.0.contains_key(kind.name()) {
-            continue;
-        }
-        let output = Part::of(kind).output();
-        let refit = fit(signals, &base, kind, options)?;
-        let after_all = refit
-            .history
-            .last()
-            .map(|s| s.validation_nrmse.clone())
-            .unwrap_or_default();
-        let nrmse_before = before[output];
-        let nrmse_after = after_all.get(output).copied().unwrap_or(f64::NAN);
-        let parameters = kind.params().len() as f64;
-        let score = if nrmse_before > 0.0 && nrmse_after.is_finite() {
-            1.0 - nrmse_after / nrmse_before - PENALTY_PER_PARAMETER * parameters
-        } else {
-            f64::NEG_INFINITY
-        };
-        let params = refit.effects.0.get(kind.name()).cloned().unwrap_or_default();
-        let significant =
-            score >= SIGNIFICANT_REDUCTION && nrmse_before - nrmse_after >= SIGNIFICANT_ABSOLUTE_REDUCTION;
-        let evidence = evidence(kind, &params, signals, &refit, nrmse_before, nrmse_after, significant);
-        candidates.push(Candidate {
-            effect: kind.name().to_owned(),
-            output: output.to_owned(),
-            validation_nrmse_before: nrmse_before,
-            validation_nrmse_after: nrmse_after,
-            params,
-            significant,
-            evidence,
-            score,
-        });
-        fitted.insert(kind.name().to_owned(), refit);
+    for result in judged {
+        let (candidate, refit) = result?;
+        fitted.insert(candidate.effect.clone(), refit);
+        candidates.push(candidate);
     }
     candidates.sort_by(|a, b| b.significant.cmp(&a.significant).then(b.score.total_cmp(&a.score)));
     let verdict = match candidates.first() {
         Some(best) if best.significant => format!(
-            "add `{}`: it removes {:.0}% of the {} error ({:.4} → {:.4})",
+            "add `{}`: it removes {:.0}% of the {} error ({:.4} → {:.4}; t = {:.1} over {} segments, threshold {:.1})",
             best.effect,
             100.0 * (1.0 - best.validation_nrmse_after / best.validation_nrmse_before),
             best.output,
             best.validation_nrmse_before,
-            best.validation_nrmse_after
+            best.validation_nrmse_after,
+            best.statistic,
+            best.segments,
+            best.threshold
         ),
         _ => "no effect of the catalog helps significantly: the model explains this data as well as it can".to_owned(),
     };
     Ok(Diagnosis {
         baseline: Baseline {
             validation_nrmse: overall,
+            validation_nrmse_by_output: before,
             fit_percent,
+            uncertainty,
         },
         candidates,
         verdict,
@@ -129,16 +249,153 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
     })
 }
 
+/// Why a fitted effect is not the effect its name says, if it is not: a
+/// parameter pressed against the edge of its range, a play narrower than
+/// the encoder's step, or a flexible load that does not ring (damped
+/// beyond critical: a lag, not a resonance).
+fn not_itself(kind: EffectKind, params: &BTreeMap<String, f64>, signals: &Signals, refit: &Model) -> Option<String> {
+    if let Some(edge) = super::fit::at_edge(kind, params) {
+        return Some(edge);
+    }
+    if kind == EffectKind::Backlash {
+        let width = params.get("width").copied().unwrap_or(0.0);
+        let step = super::fit::encoder_step(&signals.theta);
+        if width < step {
+            return Some(format!(
+                "its play, {width:.5} rad, is narrower than one step of the encoder ({step:.5} rad): the encoder cannot show it"
+            ));
+        }
+    }
+    if kind == EffectKind::LoadFlexibility {
+        let get = |key: &str| params.get(key).copied().unwrap_or(f64::NAN);
+        let (stiffness, damping, fraction) = (get("stiffness"), get("damping"), get("load_fraction"));
+        let inertia = refit.plant.inertia;
+        let reduced = inertia * fraction * (1.0 - fraction);
+        let damping_ratio = damping / (2.0 * (stiffness * reduced).sqrt());
+        if damping_ratio.is_nan() || damping_ratio >= 1.0 {
+            return Some(format!(
+                "its coupling is damped beyond critical (ζ = {damping_ratio:.2}): nothing rings"
+            ));
+        }
+    }
+    None
+}
+
+/// For the encoder's step: its share of the angle's spread on `validation`.
+fn resolution_share(
+    kind: EffectKind,
+    params: &BTreeMap<String, f64>,
+    signals: &Signals,
+    validation: Range<usize>,
+) -> Option<f64> {
+    (kind == EffectKind::Quantization)
+        .then(|| params.get("step").copied().unwrap_or(0.0) / super::fit::spread(&signals.theta[validation]))
+}
+
+/// What the diagnosis found for one effect, for its words.
+struct Judgement {
+    before: f64,
+    after: f64,
+    significant: bool,
+    test: PairedTest,
+    found_nothing: bool,
+    resolution: Option<f64>,
+    not_itself: Option<String>,
+}
+
+/// A one-sided paired t-test of the squared error, segment by segment.
+#[derive(Debug, Clone, Copy)]
+struct PairedTest {
+    statistic: f64,
+    threshold: f64,
+    segments: usize,
+    effective: f64,
+}
+
+/// Whether `after` predicts `part`'s output better than `before`, segment by
+/// segment of `validation`: t = mean(d) / (sd(d) / √n_eff) on d, the log
+/// of each segment's squared error before over after, n_eff the segments'
+/// effective number (their autocorrelation), against the t quantile at
+/// 1 − α / `tried` with n_eff − 1 degrees of freedom.
+fn paired_test(
+    signals: &Signals,
+    part: Part,
+    before: &Prediction,
+    after: &Prediction,
+    validation: Range<usize>,
+    tried: usize,
+) -> PairedTest {
+    let outputs: Vec<(&[f64], &[f64], &[f64])> = match part {
+        Part::Hydraulic => vec![
+            (&signals.p_a, &before.p_a, &after.p_a),
+            (&signals.p_b, &before.p_b, &after.p_b),
+        ],
+        Part::Mechanical => vec![(&signals.theta, &before.theta, &after.theta)],
+    };
+    let differences: Vec<f64> = super::segments(signals, validation)
+        .filter_map(|segment| {
+            let (mut error_before, mut error_after) = (0.0, 0.0);
+            let mut counted = 0;
+            for (y, b, a) in &outputs {
+                for k in segment.clone() {
+                    if b[k].is_finite() && a[k].is_finite() {
+                        error_before += (y[k] - b[k]).powi(2);
+                        error_after += (y[k] - a[k]).powi(2);
+                        counted += 1;
+                    }
+                }
+            }
+            // The log of the ratio: each segment weighs alike, whatever its
+            // error's size, and the same test holds in bar and in rad.
+            let floor = 1e-12 * (error_before + error_after) + f64::MIN_POSITIVE;
+            (counted > 0).then(|| ((error_before + floor) / (error_after + floor)).ln())
+        })
+        .collect();
+    let n = differences.len();
+    // Neighbouring segments share slow errors (a drift, a regime): count
+    // them as fewer independent ones.
+    let effective = super::fit::effective_sample_size(&differences, 1).clamp(1.0, n as f64);
+    let threshold = if effective >= 2.0 {
+        StudentsT::new(0.0, 1.0, effective - 1.0)
+            .map(|t| t.inverse_cdf(1.0 - FAMILY_ALPHA / tried as f64))
+            .unwrap_or(f64::INFINITY)
+    } else {
+        f64::INFINITY
+    };
+    let mean = differences.iter().sum::<f64>() / n.max(1) as f64;
+    let variance = differences.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64;
+    let statistic = if variance > 0.0 {
+        mean / (variance / effective).sqrt()
+    } else if mean > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    };
+    PairedTest {
+        statistic,
+        threshold,
+        segments: n,
+        effective,
+    }
+}
+
 /// The evidence for an effect in plain words, from the data and the fit.
 fn evidence(
     kind: EffectKind,
     params: &BTreeMap<String, f64>,
     signals: &Signals,
     refit: &Model,
-    before: f64,
-    after: f64,
-    significant: bool,
+    judgement: Judgement,
 ) -> String {
+    let Judgement {
+        before,
+        after,
+        significant,
+        test,
+        found_nothing,
+        resolution,
+        not_itself,
+    } = judgement;
     let get = |key: &str| params.get(key).copied().unwrap_or(f64::NAN);
     let change = format!(
         "; with it the {} validation NRMSE goes {before:.4} → {after:.4}",
@@ -201,18 +458,32 @@ fn evidence(
             )
         }
     };
-    if significant {
-        format!("{what}{change}")
+    let judged = format!(
+        "paired t over {} validation segments ({:.1} effective): {:.1} against {:.1} (one-sided, α = {FAMILY_ALPHA} shared by the effects tried)",
+        test.segments, test.effective, test.statistic, test.threshold
+    );
+    let output = Part::of(kind).output();
+    if found_nothing {
+        format!("not significant: fitted as hard as the baseline, it lowers the estimation loss no further ({judged})")
+    } else if let Some(why) = not_itself.filter(|_| test.statistic > test.threshold && after < before) {
+        format!(
+            "not named: fitted, it takes the {output} validation NRMSE {before:.4} → {after:.4}, but {why}: \
+             it stands in for something the catalog lacks ({judged})"
+        )
+    } else if let Some(share) = resolution.filter(|s| *s < RESOLUTION_SHARE) {
+        format!(
+            "not a missing effect: the angle moves in steps of {:.5} rad, {:.1}% of its spread, the encoder's own resolution (under {:.0}%); \
+             modelling the staircase takes the {output} validation NRMSE {before:.4} → {after:.4} ({judged})",
+            get("step"),
+            100.0 * share,
+            100.0 * RESOLUTION_SHARE
+        )
+    } else if significant {
+        format!("{judged}; {what}{change}")
     } else if after > before {
-        format!(
-            "not significant: fitted, it makes the {} validation NRMSE worse, {before:.4} → {after:.4}",
-            Part::of(kind).output()
-        )
+        format!("not significant: fitted, it makes the {output} validation NRMSE worse, {before:.4} → {after:.4} ({judged})")
     } else {
-        format!(
-            "not significant: fitted, it changes the {} validation NRMSE only {before:.4} → {after:.4}",
-            Part::of(kind).output()
-        )
+        format!("not significant: fitted, it lowers the {output} validation NRMSE {before:.4} → {after:.4}, no more than chance would ({judged})")
     }
 }
 

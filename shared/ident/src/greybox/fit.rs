@@ -8,6 +8,8 @@ use std::ops::Range;
 use hydractl_plant::effects::Effects;
 use hydractl_plant::{Effect, EffectKind, EffectsConfig, PlantParams};
 
+use serde::Serialize;
+
 use super::{predict_hydraulic, predict_mechanical, HistoryStep, Model, ModelError, Part, Prediction, Signals};
 use crate::lm::{self, LmOptions};
 
@@ -18,6 +20,9 @@ const SCREENING_ITERATIONS: usize = 3;
 pub struct FitOptions {
     /// The first fraction of the record estimates; the rest validates.
     pub estimation_fraction: f64,
+    /// The most Levenberg–Marquardt iterations of one fit; it stops sooner
+    /// once three iterations in a row gain under 1e-6 of the cost. The
+    /// baseline and every candidate get the same.
     pub max_iterations: usize,
 }
 
@@ -25,7 +30,7 @@ impl Default for FitOptions {
     fn default() -> Self {
         Self {
             estimation_fraction: 0.7,
-            max_iterations: 15,
+            max_iterations: 40,
         }
     }
 }
@@ -42,6 +47,23 @@ enum Knob {
     Inertia,
     ViscousFriction,
     Effect(EffectKind, &'static str),
+}
+
+impl Knob {
+    /// The parameter's name in the model file.
+    fn name(self) -> String {
+        match self {
+            Knob::BulkModulus => "bulk_modulus".to_owned(),
+            Knob::FlowGain => "flow_gain".to_owned(),
+            Knob::FlowPressureCoefficient => "flow_pressure_coefficient".to_owned(),
+            Knob::Leakage => "leakage".to_owned(),
+            Knob::ValveNaturalFrequency => "valve_natural_frequency".to_owned(),
+            Knob::ValveDamping => "valve_damping".to_owned(),
+            Knob::Inertia => "inertia".to_owned(),
+            Knob::ViscousFriction => "viscous_friction".to_owned(),
+            Knob::Effect(kind, key) => format!("{}.{key}", kind.name()),
+        }
+    }
 }
 
 /// How a knob is scaled for the optimizer: by its logarithm (positive
@@ -117,6 +139,34 @@ fn effect_knobs(kind: EffectKind) -> Vec<Free> {
     }
 }
 
+/// Whether an effect's main parameter sits at an edge of the range the fit
+/// allows it, in words: an effect pressed against its range is standing in
+/// for something else. (A secondary parameter at its edge, a Stribeck
+/// velocity the data cannot resolve, says only that it is not identified.)
+pub(crate) fn at_edge(kind: EffectKind, params: &BTreeMap<String, f64>) -> Option<String> {
+    let main = kind.main_param()?;
+    effect_knobs(kind).into_iter().find_map(|free| {
+        let Knob::Effect(_, key) = free.knob else {
+            return None;
+        };
+        if key != main {
+            return None;
+        }
+        let value = *params.get(key)?;
+        let (lower, upper) = free.bounds();
+        let scaled = free.scaled(value);
+        let near = 1e-6 * (upper - lower);
+        let edge = if scaled <= lower + near {
+            "lower"
+        } else if scaled >= upper - near {
+            "upper"
+        } else {
+            return None;
+        };
+        Some(format!("{key} = {value:.4} is at the {edge} edge of its range"))
+    })
+}
+
 /// A model under fit: parameters and effects as plain maps, so that any
 /// knob can be set and the catalog validates the result.
 #[derive(Debug, Clone)]
@@ -176,6 +226,13 @@ impl Working {
         );
     }
 
+    fn of(model: &Model) -> Self {
+        Self {
+            plant: model.plant,
+            effects: model.effects.clone(),
+        }
+    }
+
     fn has(&self, kind: EffectKind) -> bool {
         self.effects.0.contains_key(kind.name())
     }
@@ -211,16 +268,47 @@ impl Free {
     }
 }
 
-/// Normalizes a part's residuals by each output's spread, so that pressures
-/// and angle weigh alike, and applies the Huber loss.
+/// The loss a part is fitted under: each output's residual divided by its
+/// spread (so that pressures and angle weigh alike), through the Huber loss.
+/// It is set once, from the model a fit starts from; a diagnosis fits the
+/// baseline and every candidate of a part under the same one, so that they
+/// minimize the same thing.
 #[derive(Debug, Clone, Copy)]
-struct Loss {
+pub(crate) struct Loss {
     spreads: [f64; 2],
     /// Huber threshold on the normalized residual; infinite for plain least squares.
     threshold: f64,
 }
 
 impl Loss {
+    /// From the residuals of `start` on `range`: the threshold at 1.345
+    /// robust standard deviations of them (Huber's 95%-efficiency choice).
+    fn from_model(part: Part, start: &Working, signals: &Signals, range: Range<usize>) -> Result<Self, ModelError> {
+        let spreads = output_spreads(part, signals, range.clone());
+        let plain = Loss {
+            spreads,
+            threshold: f64::INFINITY,
+        };
+        let effects = start
+            .build()
+            .ok_or_else(|| ModelError::Fit("the starting model is not valid".to_owned()))?;
+        let initial = plain.residuals(
+            part,
+            signals,
+            &predict_part(part, &start.plant, &effects, signals, range.clone()),
+            range,
+        );
+        // The pressures sit at tank or supply now and then, where the
+        // model's linear flow is wrong: Huber keeps those from steering the
+        // fit. The angle has no such moments, and a missing friction shows
+        // as a few large errors while the load sticks: least squares.
+        let threshold = match part {
+            Part::Hydraulic => 1.345 * 1.4826 * median_abs(&initial).max(1e-9),
+            Part::Mechanical => f64::INFINITY,
+        };
+        Ok(Loss { spreads, threshold })
+    }
+
     fn residuals(&self, part: Part, signals: &Signals, prediction: &Prediction, range: Range<usize>) -> Vec<f64> {
         let mut out = Vec::with_capacity(2 * range.len());
         let mut push = |r: f64| {
@@ -281,7 +369,32 @@ fn predict_part(
     prediction
 }
 
-/// Fits one part's knobs on `range`; returns the fitted model and its cost.
+/// How well the data pins a fit's parameters down.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Uncertainty {
+    /// One standard deviation of each fitted parameter, in its own units
+    /// (`inertia`, `deadzone.width`, …), from JᵀJ at the optimum with the
+    /// residuals' variance, widened for their autocorrelation.
+    pub std: BTreeMap<String, f64>,
+    /// Pairs the data cannot separate: |correlation| above 0.95, with it.
+    pub inseparable: Vec<String>,
+}
+
+/// Correlation above which two parameters are said to move as one.
+const INSEPARABLE_CORRELATION: f64 = 0.95;
+
+/// One part fitted: the model, its cost under the part's loss, and how
+/// well the data fixes each knob.
+#[derive(Debug, Clone)]
+pub(crate) struct PartFit {
+    working: Working,
+    /// Sum of squared (Huber) residuals per residual.
+    pub cost: f64,
+    pub uncertainty: Uncertainty,
+}
+
+/// Fits one part's knobs on `range` under `loss`, until it converges or
+/// spends `options.max_iterations`.
 fn fit_part(
     part: Part,
     start: &Working,
@@ -289,25 +402,8 @@ fn fit_part(
     signals: &Signals,
     range: Range<usize>,
     options: FitOptions,
-) -> Result<Working, ModelError> {
-    let spreads = output_spreads(part, signals, range.clone());
-    let plain = Loss {
-        spreads,
-        threshold: f64::INFINITY,
-    };
-    let effects = start
-        .build()
-        .ok_or_else(|| ModelError::Fit("the starting model is not valid".to_owned()))?;
-    let initial = plain.residuals(
-        part,
-        signals,
-        &predict_part(part, &start.plant, &effects, signals, range.clone()),
-        range.clone(),
-    );
-    let loss = Loss {
-        spreads,
-        threshold: 1.345 * 1.4826 * median_abs(&initial).max(1e-9),
-    };
+    loss: Loss,
+) -> Result<PartFit, ModelError> {
     let theta0: Vec<f64> = knobs.iter().map(|f| f.scaled(start.value(f.knob))).collect();
     let (lower, upper): (Vec<f64>, Vec<f64>) = knobs.iter().map(Free::bounds).unzip();
     let apply = |theta: &[f64]| -> Working {
@@ -335,7 +431,96 @@ fn fit_part(
         },
     )
     .ok_or_else(|| ModelError::Fit(format!("the {part:?} part does not simulate from its start")))?;
-    Ok(apply(&result.params))
+    let working = apply(&result.params);
+    let final_residuals = residuals(&result.params).unwrap_or_default();
+    let stride = match part {
+        Part::Hydraulic => 2,
+        Part::Mechanical => 1,
+    };
+    let uncertainty = uncertainty(knobs, &working, &result, &final_residuals, stride);
+    Ok(PartFit {
+        working,
+        cost: result.cost / final_residuals.len().max(1) as f64,
+        uncertainty,
+    })
+}
+
+/// The knobs' standard deviations and inseparable pairs at a fit's optimum:
+/// σ² (JᵀJ)⁻¹ with σ² the residuals' variance, times N / N_eff for their
+/// autocorrelation (output-error residuals are far from white).
+fn uncertainty(
+    knobs: &[Free],
+    working: &Working,
+    result: &lm::LmResult,
+    residuals: &[f64],
+    stride: usize,
+) -> Uncertainty {
+    let p = knobs.len();
+    let n = residuals.len();
+    if p == 0 || n <= p {
+        return Uncertainty::default();
+    }
+    let Some(inverse) = result.normal_matrix.clone().try_inverse() else {
+        return Uncertainty {
+            std: BTreeMap::new(),
+            inseparable: vec!["the parameters are not all identifiable from this data (JᵀJ is singular)".to_owned()],
+        };
+    };
+    let variance = lm::sum_of_squares(residuals) / (n - p) as f64;
+    let widen = n as f64 / effective_sample_size(residuals, stride).max(1.0);
+    let covariance = inverse * (variance * widen);
+    let mut std = BTreeMap::new();
+    for (i, free) in knobs.iter().enumerate() {
+        let scaled_std = covariance[(i, i)].max(0.0).sqrt();
+        // Back to the parameter's units: a log knob's σ is relative.
+        let value = working.value(free.knob);
+        let sigma = match free.scale {
+            Scale::Log { .. } => value.abs() * scaled_std,
+            Scale::Linear { unit, .. } => unit * scaled_std,
+        };
+        std.insert(free.knob.name(), sigma);
+    }
+    let mut inseparable = Vec::new();
+    for i in 0..p {
+        for j in i + 1..p {
+            let denominator = (covariance[(i, i)] * covariance[(j, j)]).sqrt();
+            let correlation = covariance[(i, j)] / denominator;
+            if denominator > 0.0 && correlation.abs() > INSEPARABLE_CORRELATION {
+                inseparable.push(format!(
+                    "{} and {} (correlation {correlation:+.3}): the data fixes a combination of them, not each",
+                    knobs[i].knob.name(),
+                    knobs[j].knob.name()
+                ));
+            }
+        }
+    }
+    Uncertainty { std, inseparable }
+}
+
+/// The effective number of independent residuals, N / (1 + 2 Σ ρ_k), the
+/// autocorrelations ρ_k at lags of whole samples (`stride` residuals per
+/// sample) summed while positive (Geyer's initial positive sequence).
+pub(crate) fn effective_sample_size(residuals: &[f64], stride: usize) -> f64 {
+    let n = residuals.len();
+    let stride = stride.max(1);
+    if n < 4 * stride {
+        return n as f64;
+    }
+    let mean = residuals.iter().sum::<f64>() / n as f64;
+    let centred: Vec<f64> = residuals.iter().map(|r| r - mean).collect();
+    let variance = centred.iter().map(|r| r * r).sum::<f64>();
+    if variance <= 0.0 {
+        return n as f64;
+    }
+    let mut sum = 0.0;
+    for lag in (stride..n / 2).step_by(stride) {
+        let rho = centred[lag..].iter().zip(&centred).map(|(a, b)| a * b).sum::<f64>() / variance;
+        if rho <= 0.0 {
+            break;
+        }
+        sum += rho;
+    }
+    n as f64 / (1.0 + 2.0 * sum)
 }
 
 fn median_abs(x: &[f64]) -> f64 {
@@ -347,15 +532,10 @@ fn median_abs(x: &[f64]) -> f64 {
     a[a.len() / 2]
 }
 
-/// The plain least-squares cost of one part on `range`, normalized per sample.
-fn part_cost(part: Part, w: &Working, signals: &Signals, range: Range<usize>) -> f64 {
+/// One part's cost under `loss` on `range`, per residual.
+fn part_cost(part: Part, w: &Working, signals: &Signals, range: Range<usize>, loss: Loss) -> f64 {
     let Some(effects) = w.build() else {
         return f64::INFINITY;
-    };
-    let spreads = output_spreads(part, signals, range.clone());
-    let loss = Loss {
-        spreads,
-        threshold: f64::INFINITY,
     };
     let prediction = predict_part(part, &w.plant, &effects, signals, range.clone());
     let r = loss.residuals(part, signals, &prediction, range);
@@ -470,21 +650,16 @@ pub(crate) fn nrmse_by_output(
     ])
 }
 
-/// Fits the baseline (no effects) from the prior's parameters.
+/// Fits the baseline (no effects) from the prior's parameters: each part
+/// to convergence, under the loss of its own first fit.
 pub fn fit_baseline(signals: &Signals, prior: &PlantParams, options: FitOptions) -> Result<Model, ModelError> {
-    let estimation = 0..signals.split(options.estimation_fraction);
-    let mut w = Working {
-        plant: *prior,
-        effects: EffectsConfig::default(),
-    };
-    if let Some((inertia, viscous)) = rigid_body_by_equation_error(signals, prior, estimation.clone()) {
-        w.plant.inertia = inertia;
-        w.plant.viscous_friction = viscous;
-    }
+    let mut model = Model::new(*prior, Effects::none());
     for part in [Part::Hydraulic, Part::Mechanical] {
-        w = fit_part(part, &w, &baseline_knobs(part), signals, estimation.clone(), options)?;
+        // The prior's residuals are the model error of a wrong prior: a
+        // first fit under its loss, then to convergence under the fitted one's.
+        let first = refit_part(signals, &model, part, options, None)?.0;
+        model = refit_part(signals, &first, part, options, None)?.0;
     }
-    let mut model = Model::new(w.plant, Effects::none());
     let effects = model.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
     model.history.push(HistoryStep {
@@ -494,46 +669,83 @@ pub fn fit_baseline(signals: &Signals, prior: &PlantParams, options: FitOptions)
     Ok(model)
 }
 
+/// The loss a diagnosis fits `part` of `model` and its candidates under.
+pub(crate) fn part_loss(signals: &Signals, model: &Model, part: Part, options: FitOptions) -> Result<Loss, ModelError> {
+    let estimation = 0..signals.split(options.estimation_fraction);
+    Loss::from_model(part, &Working::of(model), signals, estimation)
+}
+
+/// Refits `part` of `model` with the effects it has, from the same starts
+/// a candidate gets (the model as it is, and for the mechanical part the
+/// rigid body by equation error), under `loss` (else the model's own), to
+/// convergence. The history is kept as it was.
+pub(crate) fn refit_part(
+    signals: &Signals,
+    model: &Model,
+    part: Part,
+    options: FitOptions,
+    loss: Option<Loss>,
+) -> Result<(Model, PartFit), ModelError> {
+    let start = Working::of(model);
+    let estimation = 0..signals.split(options.estimation_fraction);
+    let loss = match loss {
+        Some(l) => l,
+        None => Loss::from_model(part, &start, signals, estimation.clone())?,
+    };
+    let knobs = part_knobs(part, &start, None);
+    let mut best: Option<PartFit> = None;
+    for base in bases(part, &start, signals, estimation.clone()) {
+        let Ok(fitted) = fit_part(part, &base, &knobs, signals, estimation.clone(), options, loss) else {
+            continue;
+        };
+        if best.as_ref().is_none_or(|b| fitted.cost < b.cost) {
+            best = Some(fitted);
+        }
+    }
+    let fitted = best.ok_or_else(|| ModelError::Fit(format!("the {part:?} part does not simulate from its start")))?;
+    let out = Model {
+        plant: fitted.working.plant,
+        effects: fitted.working.effects.clone(),
+        history: model.history.clone(),
+    };
+    Ok((out, fitted))
+}
+
 /// Adds `kind` to `model` and refits the part it acts on: the effect's
 /// parameters from the best of several starts, then all of that part's
 /// parameters together. The history gains a step.
 pub fn fit(signals: &Signals, model: &Model, kind: EffectKind, options: FitOptions) -> Result<Model, ModelError> {
-    let start = Working {
-        plant: model.plant,
-        effects: model.effects.clone(),
-    };
+    let loss = part_loss(signals, model, Part::of(kind), options)?;
+    Ok(fit_effect(signals, model, kind, options, loss)?.0)
+}
+
+/// [`fit`] under a given loss, with the part's fit.
+pub(crate) fn fit_effect(
+    signals: &Signals,
+    model: &Model,
+    kind: EffectKind,
+    options: FitOptions,
+    loss: Loss,
+) -> Result<(Model, PartFit), ModelError> {
+    let start = Working::of(model);
     if start.has(kind) {
         return Err(ModelError::AlreadyIn(kind.name()));
     }
     let part = Part::of(kind);
     let estimation = 0..signals.split(options.estimation_fraction);
-    let mut knobs = baseline_knobs(part);
-    for present in EffectKind::ALL {
-        if Part::of(present) == part && (start.has(present) || present == kind) {
-            knobs.extend(effect_knobs(present));
-        }
-    }
-    // For the mechanical part, a few iterations from each start with all of
-    // the part's parameters free: inertia and viscous friction absorb much
-    // of a missing friction or load, and must give it back before a start
-    // can be judged.
-    let mut bases = vec![start.clone()];
-    if part == Part::Mechanical {
-        if let Some((inertia, viscous)) = rigid_body_by_equation_error(signals, &start.plant, estimation.clone()) {
-            let mut fresh = start.clone();
-            fresh.plant.inertia = inertia;
-            fresh.plant.viscous_friction = viscous;
-            bases.push(fresh);
-        }
-    }
+    let knobs = part_knobs(part, &start, Some(kind));
     // Starts are screened on the first third of the estimation segment.
+    // For the mechanical part, a few iterations from each start with all
+    // of the part's parameters free: inertia and viscous friction absorb
+    // much of a missing friction or load, and must give it back before a
+    // start can be judged.
     let screening = estimation.start..estimation.start + estimation.len() / 3;
     let mut best: Option<(f64, Working)> = None;
-    for (base, effect) in bases
-        .iter()
-        .flat_map(|b| starts(kind, signals).into_iter().map(move |e| (b, e)))
+    for (base, effect) in bases(part, &start, signals, estimation.clone())
+        .into_iter()
+        .flat_map(|b| starts(kind, signals).into_iter().map(move |e| (b.clone(), e)))
     {
-        let mut candidate = base.clone();
+        let mut candidate = base;
         candidate.insert(effect);
         let screened = match part {
             // The pressures' baseline absorbs little of a hydraulic effect:
@@ -544,22 +756,22 @@ pub fn fit(signals: &Signals, model: &Model, kind: EffectKind, options: FitOptio
                     max_iterations: SCREENING_ITERATIONS,
                     ..options
                 };
-                let Ok(screened) = fit_part(part, &candidate, &knobs, signals, screening.clone(), quick) else {
+                let Ok(screened) = fit_part(part, &candidate, &knobs, signals, screening.clone(), quick, loss) else {
                     continue;
                 };
-                screened
+                screened.working
             }
         };
-        let cost = part_cost(part, &screened, signals, screening.clone());
+        let cost = part_cost(part, &screened, signals, screening.clone(), loss);
         if best.as_ref().is_none_or(|(c, _)| cost < *c) {
             best = Some((cost, screened));
         }
     }
     let (_, seeded) = best.ok_or_else(|| ModelError::Fit(format!("no valid start for `{kind}`")))?;
-    let fitted = fit_part(part, &seeded, &knobs, signals, estimation, options)?;
+    let fitted = fit_part(part, &seeded, &knobs, signals, estimation, options, loss)?;
     let mut out = Model {
-        plant: fitted.plant,
-        effects: fitted.effects,
+        plant: fitted.working.plant,
+        effects: fitted.working.effects.clone(),
         history: model.history.clone(),
     };
     let effects = out.effects()?;
@@ -568,7 +780,35 @@ pub fn fit(signals: &Signals, model: &Model, kind: EffectKind, options: FitOptio
         step: kind.name().to_owned(),
         validation_nrmse: validation_nrmse(&out.plant, &effects, signals, validation),
     });
-    Ok(out)
+    Ok((out, fitted))
+}
+
+/// A part's knobs: the baseline's, and those of every effect of the part
+/// the model has (and of `adding`).
+fn part_knobs(part: Part, model: &Working, adding: Option<EffectKind>) -> Vec<Free> {
+    let mut knobs = baseline_knobs(part);
+    for present in EffectKind::ALL {
+        if Part::of(present) == part && (model.has(present) || Some(present) == adding) {
+            knobs.extend(effect_knobs(present));
+        }
+    }
+    knobs
+}
+
+/// Where a part's fit starts: the model as it is, and for the mechanical
+/// part also the rigid body by equation error (inertia and viscous friction
+/// from the data alone).
+fn bases(part: Part, start: &Working, signals: &Signals, estimation: Range<usize>) -> Vec<Working> {
+    let mut bases = vec![start.clone()];
+    if part == Part::Mechanical {
+        if let Some((inertia, viscous)) = rigid_body_by_equation_error(signals, &start.plant, estimation) {
+            let mut fresh = start.clone();
+            fresh.plant.inertia = inertia;
+            fresh.plant.viscous_friction = viscous;
+            bases.push(fresh);
+        }
+    }
+    bases
 }
 
 /// Half-width of the equation error's moving average, s: its first null is

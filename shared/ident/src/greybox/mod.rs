@@ -25,7 +25,7 @@ mod signals;
 
 pub use compare::{compare, Comparison, CorrelationTest, OutputScore, RegimeScore};
 pub use diagnose::{diagnose, Candidate, Diagnosis};
-pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions};
+pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
 pub use signals::{Signals, REQUIRED_COLUMNS};
 
 use std::collections::BTreeMap;
