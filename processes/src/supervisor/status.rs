@@ -15,11 +15,16 @@ use super::seat::Seat;
 /// faults it took since it answered its first reading (the goal is none).
 /// Counted from its first answer, not from its start: until its peers
 /// have all opened their ports, connecting to one maps its memory, which
-/// is the start-up's work, not the loop's.
+/// is the start-up's work, not the loop's. And counted afresh once its
+/// memory is locked, at the second status that sees it locked: the valve
+/// answers (neutral) before it locks, and the locking itself faults in
+/// what was not yet resident, after `VmLck` already shows it.
 #[derive(Default)]
 pub(super) struct LoopMemory {
-    /// By pid: its page faults when it was first seen answering.
-    at_first_answer: HashMap<u32, u64>,
+    /// By pid: its page faults when counting began, and how many
+    /// statuses saw its memory locked until then (counting begins afresh
+    /// until two have).
+    at_first_answer: HashMap<u32, (u64, u8)>,
 }
 
 impl LoopMemory {
@@ -33,10 +38,14 @@ impl LoopMemory {
         let Some(now) = placement::page_faults(Some(pid)) else {
             return (UNKNOWN, 0);
         };
-        let at_first = *self.at_first_answer.entry(pid).or_insert(now);
+        let locked = placement::memory_locked(pid);
+        let entry = self.at_first_answer.entry(pid).or_insert((now, 0));
+        if locked && entry.1 < 2 {
+            *entry = (now, entry.1 + 1);
+        }
         (
-            now.saturating_sub(at_first).min(u64::from(UNKNOWN - 1)) as u32,
-            u32::from(placement::memory_locked(pid)),
+            now.saturating_sub(entry.0).min(u64::from(UNKNOWN - 1)) as u32,
+            u32::from(locked),
         )
     }
 }

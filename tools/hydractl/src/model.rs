@@ -244,12 +244,7 @@ pub fn diagnosis_table(diagnosis: &greybox::Diagnosis) -> String {
     }
     text += &format!(
         "\n{:<18} {:<10} {:>8} {:>8} {:>6}  {}\n",
-        "effect",
-        "output",
-        "before",
-        "after",
-        "sig.",
-        "evidence"
+        "effect", "output", "before", "after", "sig.", "evidence"
     );
     for c in &diagnosis.candidates {
         text += &format!(
