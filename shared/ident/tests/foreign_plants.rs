@@ -37,7 +37,10 @@ fn no_null_effect_beats_the_baseline(diagnosis: &Diagnosis, plant: &str) {
     for c in &diagnosis.candidates {
         let main = |key: &str| c.params.get(key).copied().unwrap_or(f64::NAN);
         let null = match c.effect.as_str() {
-            "deadzone" | "backlash" => main("width") < 1e-6,
+            // A band of no width centred off zero is still a valve's null
+            // offset, not the baseline.
+            "deadzone" => main("width") < 1e-6 && main("offset").abs() < 1e-6,
+            "backlash" => main("width") < 1e-6,
             "time_delay" => main("delay_s") < 1e-7,
             "asymmetric_gain" => (main("ratio") - 1.0).abs() < 1e-6,
             "saturation" => main("limit") >= 1.0 - 1e-9,

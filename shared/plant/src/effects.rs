@@ -11,20 +11,25 @@ use serde::{Deserialize, Serialize};
 
 use crate::PlantError;
 
-/// Spool overlap: no flow while the spool is within `width` of centre.
+/// Spool overlap: no flow while the spool is within `width` of the band's
+/// centre, `offset` (a real valve's band is seldom centred on zero: its
+/// centre is the null offset, the command that holds a hanging load still).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Deadzone {
     /// Half-width of the overlap, command units.
     pub width: f64,
+    /// Centre of the overlap, command units.
+    pub offset: f64,
 }
 
 impl Deadzone {
     /// The effective opening: the spool travel beyond the overlap.
     pub fn opening(&self, spool: f64) -> f64 {
-        if spool > self.width {
-            spool - self.width
-        } else if spool < -self.width {
-            spool + self.width
+        let from_centre = spool - self.offset;
+        if from_centre > self.width {
+            from_centre - self.width
+        } else if from_centre < -self.width {
+            from_centre + self.width
         } else {
             0.0
         }
@@ -269,7 +274,19 @@ impl EffectKind {
     /// matters on the default rotator, so naming the effect alone shows it.
     pub fn params(self) -> &'static [ParamSpec] {
         match self {
-            EffectKind::Deadzone => const { &[param("width", 0.1, "command", "spool overlap, half-width")] },
+            EffectKind::Deadzone => {
+                const {
+                    &[
+                        param("width", 0.1, "command", "spool overlap, half-width"),
+                        param(
+                            "offset",
+                            0.0,
+                            "command",
+                            "centre of the overlap (the valve's null offset)",
+                        ),
+                    ]
+                }
+            }
             EffectKind::Saturation => const { &[param("limit", 0.5, "command", "spool travel limit")] },
             EffectKind::TimeDelay => const { &[param("delay_s", 0.02, "s", "valve command delay")] },
             EffectKind::AsymmetricGain => {
@@ -409,6 +426,7 @@ impl Effect {
         let effect = match kind {
             EffectKind::Deadzone => Effect::Deadzone(Deadzone {
                 width: non_negative("width")?,
+                offset: get("offset")?,
             }),
             EffectKind::Saturation => Effect::Saturation(Saturation {
                 limit: positive("limit")?,
@@ -507,7 +525,7 @@ impl Effect {
     /// The parameters as `(key, value)`, in the catalog's order.
     pub fn params(&self) -> Vec<(&'static str, f64)> {
         match *self {
-            Effect::Deadzone(e) => vec![("width", e.width)],
+            Effect::Deadzone(e) => vec![("width", e.width), ("offset", e.offset)],
             Effect::Saturation(e) => vec![("limit", e.limit)],
             Effect::TimeDelay(e) => vec![("delay_s", e.delay_s)],
             Effect::AsymmetricGain(e) => vec![("ratio", e.ratio)],
@@ -657,11 +675,22 @@ mod tests {
 
     #[test]
     fn deadzone_removes_the_overlap() {
-        let d = Deadzone { width: 0.1 };
+        let d = Deadzone {
+            width: 0.1,
+            offset: 0.0,
+        };
         assert_eq!(d.opening(0.05), 0.0);
         assert_eq!(d.opening(-0.1), 0.0);
         assert!((d.opening(0.3) - 0.2).abs() < 1e-15);
         assert!((d.opening(-0.3) + 0.2).abs() < 1e-15);
+        // A band off centre: a zero command opens it the other way.
+        let off = Deadzone {
+            width: 0.05,
+            offset: 0.1,
+        };
+        assert_eq!(off.opening(0.12), 0.0);
+        assert!((off.opening(0.0) + 0.05).abs() < 1e-15);
+        assert!((off.opening(0.2) - 0.05).abs() < 1e-15);
     }
 
     #[test]
@@ -755,7 +784,13 @@ mod tests {
     #[test]
     fn parse_reads_keys_and_rejects_unknown_ones_listing_the_valid() {
         let e = Effect::parse("deadzone:width=0.05").expect("valid");
-        assert_eq!(e, Effect::Deadzone(Deadzone { width: 0.05 }));
+        assert_eq!(
+            e,
+            Effect::Deadzone(Deadzone {
+                width: 0.05,
+                offset: 0.0
+            })
+        );
         let err = Effect::parse("deadzone:wdth=0.05").expect_err("unknown key");
         assert!(err.to_string().contains("width"), "{err}");
         let err = Effect::parse("dedzone").expect_err("unknown name");

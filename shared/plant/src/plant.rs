@@ -148,15 +148,22 @@ impl Plant {
     /// Puts the plant in a given state, for a fallback that starts from the
     /// last measured state. The delay line is filled with neutral commands.
     pub fn reset_to(&mut self, state: PlantState) {
+        self.restart_from(state);
+        if let Some(delay) = &mut self.delay {
+            delay.fill(0.0);
+        }
+    }
+
+    /// Puts the plant in a given state and keeps the commands on their way
+    /// through the delay: for multiple shooting, where each segment starts
+    /// from a state estimated afresh while the valve's input runs on.
+    pub fn restart_from(&mut self, state: PlantState) {
         self.state = state.to_array();
         if self.effects.load_flexibility.is_none() {
             self.state[LOAD_ANGLE] = self.state[ANGLE];
             self.state[LOAD_VELOCITY] = self.state[VELOCITY];
         }
         self.stuck = state.stuck && self.effects.coulomb_friction.is_some();
-        if let Some(delay) = &mut self.delay {
-            delay.fill(0.0);
-        }
     }
 
     /// Chamber pressure with the spool centred and the actuator still:

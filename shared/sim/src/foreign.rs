@@ -16,8 +16,9 @@ use rand_distr::{Distribution, Normal};
 /// An effect hidden in a foreign plant, with its true value.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Hidden {
-    /// Spool overlap: no flow while |spool| < width.
-    Deadzone { width: f64 },
+    /// Spool overlap: no flow while |spool − offset| < width (`offset`, the
+    /// valve's null offset, is the command that holds the load still).
+    Deadzone { width: f64, offset: f64 },
     /// The spool stops at ±limit.
     Saturation { limit: f64 },
     /// The command reaches the valve this much later, s.
@@ -52,7 +53,7 @@ impl Hidden {
     /// The catalog's key of the main parameter and its true value.
     pub fn main(&self) -> (&'static str, f64) {
         match *self {
-            Self::Deadzone { width } => ("width", width),
+            Self::Deadzone { width, .. } => ("width", width),
             Self::Saturation { limit } => ("limit", limit),
             Self::TimeDelay { seconds } => ("delay_s", seconds),
             Self::AsymmetricGain { ratio } => ("ratio", ratio),
@@ -67,7 +68,10 @@ impl Hidden {
     /// quantization at a 2°-step encoder).
     pub fn all() -> [Hidden; 8] {
         [
-            Self::Deadzone { width: 0.1 },
+            Self::Deadzone {
+                width: 0.1,
+                offset: 0.0,
+            },
             Self::Saturation { limit: 0.5 },
             Self::TimeDelay { seconds: 0.02 },
             Self::AsymmetricGain { ratio: 0.7 },
@@ -217,8 +221,9 @@ pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> Fore
                 }
             }
             let mut opening = spool;
-            if let Some(Hidden::Deadzone { width }) = hidden {
-                opening = opening.signum() * (opening.abs() - width).max(0.0);
+            if let Some(Hidden::Deadzone { width, offset }) = hidden {
+                let from_centre = opening - offset;
+                opening = from_centre.signum() * (from_centre.abs() - width).max(0.0);
             }
             let mut k_q = flow_gain;
             if let (Some(Hidden::AsymmetricGain { ratio }), true) = (hidden, opening < 0.0) {

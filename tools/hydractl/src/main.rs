@@ -192,9 +192,17 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
         /// Also write each plant's data to DIR/<case>-<seed>.csv
-        /// (`t,u,p_a,p_b,theta`), for `model diagnose` and other tools.
+        /// (the columns diagnosed), for `model diagnose` and other tools.
         #[arg(long, value_name = "DIR")]
         save_data: Option<std::path::PathBuf>,
+        /// The sensors the machine has: `full` (valve command, both chamber
+        /// pressures, angle) or `motion` (valve command and angle only).
+        #[arg(long, value_enum, default_value_t = model::ForeignSensors::Full)]
+        sensors: model::ForeignSensors,
+        /// Sample rate of the data diagnosed, Hz: the simulation's 1 kHz
+        /// taken every 1000/RATE samples (RATE divides 1000).
+        #[arg(long, default_value_t = 1000)]
+        rate: u32,
     },
     /// Sensor-to-valve latency of the five stages over iceoryx2 between
     /// processes, over UDP loopback between processes, and as function calls.
@@ -270,7 +278,20 @@ fn run_command() -> Result<()> {
             effects,
             json,
             save_data,
-        }) => model::bench_foreign(plants, duration, seed, &effects, json, save_data.as_deref()),
+            sensors,
+            rate,
+        }) => model::bench_foreign(
+            model::ForeignBench {
+                plants,
+                duration,
+                seed,
+                sensors,
+                rate,
+            },
+            &effects,
+            json,
+            save_data.as_deref(),
+        ),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
         Command::Bench(BenchCommand::Record(args)) => bench_record::bench(args),
         Command::Bench(BenchCommand::Stalls(args)) => bench_stalls::bench(args),

@@ -27,7 +27,10 @@ pub enum ModelCommand {
 
 #[derive(clap::Args)]
 pub struct DataArgs {
-    /// CSV with a header row and at least `t,u,p_a,p_b,theta` (s, command, bar, bar, rad).
+    /// CSV or MCAP: `t` (s) and `theta` (rad), and the valve command `u`
+    /// ([-1, 1]), the pressures `p_a`, `p_b` (bar) and a measured torque
+    /// `tau` (N·m) where the machine has them. Without pressures the model
+    /// is command → angle; with `tau`, the mechanical part alone.
     #[arg(long)]
     pub data: PathBuf,
     /// Share of the data, from its start, used to estimate; the rest validates.
@@ -136,12 +139,13 @@ fn parse_kind(name: &str) -> Result<EffectKind> {
 
 fn errors_line(model: &Model) -> String {
     match model.history.last() {
-        Some(step) => format!(
-            "validation NRMSE: p_a {:.4}, p_b {:.4}, theta {:.4}",
-            step.validation_nrmse.get("p_a").copied().unwrap_or(f64::NAN),
-            step.validation_nrmse.get("p_b").copied().unwrap_or(f64::NAN),
-            step.validation_nrmse.get("theta").copied().unwrap_or(f64::NAN)
-        ),
+        Some(step) => {
+            let outputs: Vec<String> = ["p_a", "p_b", "theta"]
+                .iter()
+                .filter_map(|o| step.validation_nrmse.get(*o).map(|v| format!("{o} {v:.4}")))
+                .collect();
+            format!("validation NRMSE: {}", outputs.join(", "))
+        }
         None => String::new(),
     }
 }
@@ -191,15 +195,18 @@ fn compare(args: CompareArgs) -> Result<()> {
         text += &format!("  {name:<24} {value:.4}\n");
     }
     text += "\nby regime (RMS residual / the output's spread):\n";
-    text += &format!(
-        "  {:<20} {:>7} {:>8} {:>8} {:>8}\n",
-        "regime", "samples", "p_a", "p_b", "theta"
-    );
+    let outputs = greybox::measured_outputs(&signals);
+    text += &format!("  {:<20} {:>7}", "regime", "samples");
+    for output in &outputs {
+        text += &format!(" {output:>8}");
+    }
+    text += "\n";
     for r in &comparison.regimes {
-        text += &format!(
-            "  {:<20} {:>7} {:>8.4} {:>8.4} {:>8.4}\n",
-            r.regime, r.samples, r.nrmse["p_a"], r.nrmse["p_b"], r.nrmse["theta"]
-        );
+        text += &format!("  {:<20} {:>7}", r.regime, r.samples);
+        for output in &outputs {
+            text += &format!(" {:>8.4}", r.nrmse.get(*output).copied().unwrap_or(f64::NAN));
+        }
+        text += "\n";
     }
     text += "\nresidual tests (99% bounds):\n";
     for t in &comparison.residual_tests {
@@ -234,7 +241,12 @@ pub fn diagnosis_table(diagnosis: &greybox::Diagnosis) -> String {
         .iter()
         .map(|(output, fit)| format!("{output} {:.4}", 1.0 - fit / 100.0))
         .collect();
-    let mut text = format!(
+    let parts: Vec<&str> = diagnosis.parts.iter().map(|p| p.describe()).collect();
+    let mut text = format!("parts fitted: {}\n", parts.join("; "));
+    for n in &diagnosis.not_judged {
+        text += &format!("not judged: {}: {}\n", n.effect, n.reason);
+    }
+    text += &format!(
         "baseline, refitted as hard as each candidate: validation NRMSE {:.4}, the RMS of the outputs' ({})\n",
         diagnosis.baseline.validation_nrmse,
         per_output.join(", ")
@@ -286,7 +298,7 @@ fn add(args: AddArgs) -> Result<()> {
         text += &format!(" ({})", list.join(", "));
     }
     text += "\nvalidation NRMSE   before    after\n";
-    for output in ["p_a", "p_b", "theta"] {
+    for output in greybox::measured_outputs(&signals) {
         text += &format!(
             "  {output:<14} {:>8.4} {:>8.4}\n",
             before.get(output).copied().unwrap_or(f64::NAN),
@@ -350,14 +362,51 @@ pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
     emit(&text)
 }
 
-/// A foreign plant's data as the model tools read it.
-fn save_foreign(path: &std::path::Path, data: &hydractl_sim::foreign::ForeignData) -> Result<()> {
+/// The sensors a foreign plant's machine is given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ForeignSensors {
+    /// Valve command, both chamber pressures, angle.
+    Full,
+    /// Valve command and angle: a machine without pressure transducers.
+    Motion,
+}
+
+/// What `bench foreign` simulates and diagnoses.
+#[derive(Debug, Clone, Copy)]
+pub struct ForeignBench {
+    pub plants: usize,
+    pub duration: f64,
+    pub seed: u64,
+    pub sensors: ForeignSensors,
+    /// Hz; divides 1000.
+    pub rate: u32,
+}
+
+/// A foreign plant's data as the model tools read it: the columns its
+/// sensors give, every `every`-th sample.
+fn foreign_dataset(data: hydractl_sim::foreign::ForeignData, sensors: ForeignSensors, every: usize) -> Dataset {
+    let take = |column: Vec<f64>| column.into_iter().step_by(every).collect::<Vec<f64>>();
+    let mut columns = vec![("t", take(data.t)), ("u", take(data.u))];
+    if sensors == ForeignSensors::Full {
+        columns.push(("p_a", take(data.p_a_bar)));
+        columns.push(("p_b", take(data.p_b_bar)));
+    }
+    columns.push(("theta", take(data.theta)));
+    Dataset::from_columns("foreign", columns)
+}
+
+/// A foreign plant's dataset as a CSV file, in the model tools' column
+/// order, for `model diagnose` and other tools.
+fn save_dataset(path: &std::path::Path, dataset: &Dataset) -> Result<()> {
+    let columns: Vec<(&str, &[f64])> = ["t", "u", "p_a", "p_b", "theta"]
+        .into_iter()
+        .filter_map(|name| dataset.column(name).ok().map(|c| (name, c)))
+        .collect();
     let mut writer = csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
-    writer.write_record(["t", "u", "p_a", "p_b", "theta"])?;
-    for k in 0..data.t.len() {
-        writer.write_record(
-            [data.t[k], data.u[k], data.p_a_bar[k], data.p_b_bar[k], data.theta[k]].map(|v| v.to_string()),
-        )?;
+    writer.write_record(columns.iter().map(|(name, _)| *name))?;
+    for k in 0..dataset.len() {
+        writer.write_record(columns.iter().map(|(_, c)| c[k].to_string()))?;
     }
     writer
         .flush()
@@ -395,13 +444,24 @@ struct ForeignCase {
 
 /// `bench foreign`: diagnose on plants simulated apart from the model.
 pub fn bench_foreign(
-    plants: usize,
-    duration: f64,
-    seed: u64,
+    bench: ForeignBench,
     only: &[String],
     json: bool,
     save_data: Option<&std::path::Path>,
 ) -> Result<()> {
+    let ForeignBench {
+        plants,
+        duration,
+        seed,
+        sensors,
+        rate,
+    } = bench;
+    if rate == 0 || 1000 % rate != 0 {
+        bail!(
+            "--rate {rate}: the simulation runs at 1000 Hz; give a rate that divides it (1000, 500, 200, 100, 50, …)"
+        );
+    }
+    let every = (1000 / rate) as usize;
     if let Some(dir) = save_data {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -430,19 +490,11 @@ pub fn bench_foreign(
     let diagnose_one = |_case: usize, hidden: Option<Hidden>, i: usize| -> Result<ForeignRun> {
         let plant_seed = plant_seed(hidden, i);
         let data = foreign_plant(plant_seed, hidden, duration);
+        let description = data.description.clone();
+        let dataset = foreign_dataset(data, sensors, every);
         if let Some(dir) = save_data {
-            save_foreign(&dir.join(format!("{}-{plant_seed}.csv", name(&hidden))), &data)?;
+            save_dataset(&dir.join(format!("{}-{plant_seed}.csv", name(&hidden))), &dataset)?;
         }
-        let dataset = Dataset::from_columns(
-            "foreign",
-            vec![
-                ("t", data.t),
-                ("u", data.u),
-                ("p_a", data.p_a_bar),
-                ("p_b", data.p_b_bar),
-                ("theta", data.theta),
-            ],
-        );
         let signals = Signals::from_dataset(&dataset)?;
         let start = std::time::Instant::now();
         let diagnosis = greybox::diagnose(&signals, None, FitOptions::default())?;
@@ -458,7 +510,7 @@ pub fn bench_foreign(
         });
         Ok(ForeignRun {
             seed: plant_seed,
-            plant: data.description,
+            plant: description,
             first: first.map(|c| c.effect.clone()).unwrap_or_default(),
             first_significant: first.is_some_and(|c| c.significant),
             significant: diagnosis
@@ -536,13 +588,17 @@ pub fn bench_foreign(
     if json {
         return emit(
             &(serde_json::to_string_pretty(
-                &serde_json::json!({"duration_s": duration, "seed": seed, "cases": summary}),
+                &serde_json::json!({"duration_s": duration, "seed": seed, "sensors": sensors, "rate_hz": rate, "cases": summary}),
             )? + "\n"),
         );
     }
     let mut text = format!(
-        "bench foreign: model diagnose on plants simulated apart from the model ({plants} per case, {duration} s of 1 kHz data each, seed {seed})\n\
+        "bench foreign: model diagnose on plants simulated apart from the model ({plants} per case, {duration} s of {rate} Hz data each, {} sensors, seed {seed})\n\
          {:<18} {:>6} {:>12} {:>12} {:>13} {:>10}\n",
+        match sensors {
+            ForeignSensors::Full => "full (u, p_a, p_b, theta)",
+            ForeignSensors::Motion => "motion (u, theta)",
+        },
         "hidden", "plants", "named first", "param ±25%", "any signif.", "median s"
     );
     for case in &summary {

@@ -80,7 +80,20 @@ fn chart(title: &str, x_label: &str, y_label: &str, all: &[Series], dots: bool, 
         for s in all {
             let color = s.color;
             let points = s.points.iter().copied().filter(|(a, b)| a.is_finite() && b.is_finite());
-            if dots {
+            if dots && band.is_some() {
+                // A correlation by lag: a stem per lag, read against the bounds.
+                let points: Vec<(f64, f64)> = points.collect();
+                c.draw_series(
+                    points
+                        .iter()
+                        .map(|&(x, y)| PathElement::new(vec![(x, 0.0), (x, y)], color.stroke_width(2))),
+                )
+                .map_err(|e| draw(e.to_string()))?;
+                c.draw_series(points.into_iter().map(|p| Circle::new(p, 3, color.filled())))
+                    .map_err(|e| draw(e.to_string()))?
+                    .label(s.label.clone())
+                    .legend(move |(x, y)| Circle::new((x + 8, y), 3, color.filled()));
+            } else if dots {
                 c.draw_series(points.map(|p| Circle::new(p, 1, color.mix(0.5).filled())))
                     .map_err(|e| draw(e.to_string()))?
                     .label(s.label.clone())
@@ -102,6 +115,71 @@ fn chart(title: &str, x_label: &str, y_label: &str, all: &[Series], dots: bool, 
                 ))
                 .map_err(|e| draw(e.to_string()))?;
             }
+        }
+        c.configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK.mix(0.3))
+            .draw()
+            .map_err(|e| draw(e.to_string()))?;
+        root.present().map_err(|e| draw(e.to_string()))?;
+    }
+    Ok(svg)
+}
+
+/// Bars per step, one colour per output, labelled by the step's name.
+fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor)]) -> Result<String> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT + 40)).into_drawing_area();
+        let draw = |e: String| anyhow!("drawing `{title}`: {e}");
+        root.fill(&WHITE).map_err(|e| draw(e.to_string()))?;
+        let top = outputs
+            .iter()
+            .flat_map(|(_, v, _)| v.iter().copied())
+            .filter(|v| v.is_finite())
+            .fold(0.0_f64, f64::max)
+            .max(1e-9)
+            * 1.15;
+        let n = steps.len();
+        let mut c = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 15))
+            .margin(8)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(-0.5..n as f64 - 0.5, 0.0..top)
+            .map_err(|e| draw(e.to_string()))?;
+        let label = |x: &f64| {
+            let i = x.round();
+            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
+                steps[i as usize].clone()
+            } else {
+                String::new()
+            }
+        };
+        c.configure_mesh()
+            .disable_x_mesh()
+            .x_labels(n.max(2) * 2 + 1)
+            .x_label_formatter(&label)
+            .y_desc("validation NRMSE")
+            .light_line_style(WHITE.mix(0.0))
+            .draw()
+            .map_err(|e| draw(e.to_string()))?;
+        let width = 0.7 / outputs.len().max(1) as f64;
+        for (j, (name, values, color)) in outputs.iter().enumerate() {
+            let color = *color;
+            let offset = -0.35 + width * j as f64;
+            c.draw_series(values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, v)| {
+                let x = i as f64 + offset;
+                Rectangle::new([(x, 0.0), (x + width * 0.9, *v)], color.filled())
+            }))
+            .map_err(|e| draw(e.to_string()))?
+            .label(*name)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 12, y + 4)], color.filled()));
+            c.draw_series(values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, v)| {
+                let x = i as f64 + offset;
+                Text::new(format!("{v:.3}"), (x, *v + 0.02 * top), ("sans-serif", 11))
+            }))
+            .map_err(|e| draw(e.to_string()))?;
         }
         c.configure_series_labels()
             .background_style(WHITE.mix(0.8))
@@ -141,6 +219,7 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         figures.push((caption.to_owned(), svg?));
         Ok(())
     };
+    let hydraulic = signals.parts().contains(&greybox::Part::Hydraulic);
     let outputs = [
         (
             "p_a",
@@ -168,6 +247,9 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         ),
     ];
     for (name, caption, measured, modelled, scale, unit) in outputs {
+        if name != "theta" && !hydraulic {
+            continue;
+        }
         add(
             caption,
             chart(
@@ -183,22 +265,28 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
             ),
         )?;
     }
+    if hydraulic {
+        add(
+            "Residuals over time: structure here is what the model misses.",
+            chart(
+                "pressure residuals",
+                "t [s]",
+                "bar",
+                &[
+                    series("p_a", at(&r_a, 1.0), MODEL),
+                    series("p_b", at(&r_b, 1.0), SECOND),
+                ],
+                false,
+                None,
+            ),
+        )?;
+    }
     add(
-        "Residuals over time: structure here is what the model misses.",
-        chart(
-            "pressure residuals",
-            "t [s]",
-            "bar",
-            &[
-                series("p_a", at(&r_a, 1.0), MODEL),
-                series("p_b", at(&r_b, 1.0), SECOND),
-            ],
-            false,
-            None,
-        ),
-    )?;
-    add(
-        "",
+        if hydraulic {
+            ""
+        } else {
+            "Angle residual over time: structure here is what the model misses."
+        },
         chart(
             "angle residual",
             "t [s]",
@@ -208,17 +296,31 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
             None,
         ),
     )?;
-    add(
-        "Pressure residual against the command: a dead-zone shows as a band near u = 0, saturation at the ends, asymmetric gain as a tilt on one side only.",
-        chart(
-            "p_a residual vs command",
-            "u",
-            "bar",
-            &[series("p_a", against(&signals.u, &r_a), MODEL)],
-            true,
-            None,
-        ),
-    )?;
+    if hydraulic {
+        add(
+            "Pressure residual against the command: a dead-zone shows as a band near u = 0, saturation at the ends, asymmetric gain as a tilt on one side only.",
+            chart(
+                "p_a residual vs command",
+                "u",
+                "bar",
+                &[series("p_a", against(&signals.u, &r_a), MODEL)],
+                true,
+                None,
+            ),
+        )?;
+    } else if signals.has_command {
+        add(
+            "Angle residual against the command: a dead-zone or a null offset shows as a band near u = 0, saturation at the ends.",
+            chart(
+                "theta residual vs command",
+                "u",
+                "rad",
+                &[series("theta", against(&signals.u, &r_theta), MODEL)],
+                true,
+                None,
+            ),
+        )?;
+    }
     add(
         "Angle residual against velocity: friction shows as a step at zero velocity, backlash as a jump between directions.",
         chart(
@@ -270,29 +372,67 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         )?;
     }
     if model.history.len() > 1 {
-        let steps = |output: &str| -> Vec<(f64, f64)> {
-            model
+        let names: Vec<String> = model.history.iter().map(|s| s.step.clone()).collect();
+        let mut bars = Vec::new();
+        for (output, color) in [("pressures", SECOND), ("theta", MODEL)] {
+            let values: Vec<f64> = model
                 .history
                 .iter()
-                .enumerate()
-                .map(|(i, s)| (i as f64, s.validation_nrmse.get(output).copied().unwrap_or(f64::NAN)))
-                .collect()
-        };
-        let names: Vec<String> = model.history.iter().map(|s| s.step.clone()).collect();
+                .map(|s| s.validation_nrmse.get(output).copied().unwrap_or(f64::NAN))
+                .collect();
+            if values.iter().any(|v| v.is_finite()) {
+                bars.push((output, values, color));
+            }
+        }
         add(
-            &format!("The error falling, step by step: {}.", names.join(" → ")),
-            chart(
-                "validation NRMSE per step",
-                "step",
-                "NRMSE",
-                &[
-                    series("pressures", steps("pressures"), SECOND),
-                    series("theta", steps("theta"), MODEL),
-                ],
-                false,
-                None,
+            &format!(
+                "The error falling, step by step ({}): each step's validation NRMSE on the data it was fitted on.",
+                names.join(" → ")
             ),
+            bar_chart("validation NRMSE per step of the model's history", &names, &bars),
         )?;
+        // Each step's residual against the one before it, where the model
+        // file kept the models the steps left.
+        for pair in model.history.windows(2) {
+            let (Some(before), Some(after)) = (pair[0].model(), pair[1].model()) else {
+                continue;
+            };
+            let predict = |(plant, effects): &(hydractl_plant::PlantParams, hydractl_plant::Effects)| {
+                greybox::predict(plant, effects, signals, v.clone())
+            };
+            let (p0, p1) = (predict(&before), predict(&after));
+            let part = hydractl_plant::EffectKind::from_name(&pair[1].step)
+                .ok()
+                .and_then(|kind| signals.part_for(kind).ok());
+            let (output, measured, y0, y1, scale, unit) = if part == Some(greybox::Part::Hydraulic) {
+                ("p_a", &signals.p_a, p0.p_a, p1.p_a, bar, "bar")
+            } else {
+                ("theta", &signals.theta, p0.theta, p1.theta, 1.0, "rad")
+            };
+            let r0 = residual(measured, &y0, scale);
+            let r1 = residual(measured, &y1, scale);
+            add(
+                &format!(
+                    "Adding {}: the {output} residual before the step (grey) and after it (colour).",
+                    pair[1].step
+                ),
+                chart(
+                    &format!("{output} residual, {} → {}", pair[0].step, pair[1].step),
+                    "t [s]",
+                    unit,
+                    &[
+                        series(
+                            &format!("before ({})", pair[0].step),
+                            at(&r0, 1.0),
+                            RGBColor(150, 150, 150),
+                        ),
+                        series(&format!("after (+{})", pair[1].step), at(&r1, 1.0), MODEL),
+                    ],
+                    false,
+                    None,
+                ),
+            )?;
+        }
     }
 
     let mut html = String::from(
@@ -310,6 +450,14 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         escape(&comparison.method)
     );
     let _ = write!(html, "<h2>Verdict</h2><p><b>{}</b></p>", escape(&diagnosis.verdict));
+    html += "<h2>What this record can show</h2><ul>";
+    for part in &diagnosis.parts {
+        let _ = write!(html, "<li>fitted: {}</li>", escape(part.describe()));
+    }
+    for n in &diagnosis.not_judged {
+        let _ = write!(html, "<li>not judged: <b>{}</b>: {}</li>", n.effect, escape(&n.reason));
+    }
+    html += "</ul>";
     html += "<h2>Fit per output</h2><table><tr><th>output</th><th>fit %</th><th>NRMSE</th></tr>";
     for o in &comparison.outputs {
         let _ = write!(
@@ -322,13 +470,22 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
     for (name, value) in &comparison.submodels {
         let _ = write!(html, "<tr><td>{name}</td><td>{value:.4}</td></tr>");
     }
-    html += "</table><br><table><tr><th>regime</th><th>samples</th><th>p_a</th><th>p_b</th><th>theta</th></tr>";
+    let measured = greybox::measured_outputs(signals);
+    html += "</table><br><table><tr><th>regime</th><th>samples</th>";
+    for output in &measured {
+        let _ = write!(html, "<th>{output}</th>");
+    }
+    html += "</tr>";
     for r in &comparison.regimes {
-        let _ = write!(
-            html,
-            "<tr><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr>",
-            r.regime, r.samples, r.nrmse["p_a"], r.nrmse["p_b"], r.nrmse["theta"]
-        );
+        let _ = write!(html, "<tr><td>{}</td><td>{}</td>", r.regime, r.samples);
+        for output in &measured {
+            let _ = write!(
+                html,
+                "<td>{:.4}</td>",
+                r.nrmse.get(*output).copied().unwrap_or(f64::NAN)
+            );
+        }
+        html += "</tr>";
     }
     html += "</table><h2>Diagnosis</h2><table><tr><th>effect</th><th>output</th><th>before</th><th>after</th><th>significant</th><th>evidence</th></tr>";
     for c in &diagnosis.candidates {

@@ -319,7 +319,10 @@ fn model_input_defects_name_the_file_line_and_column() {
         .expect("runs");
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("bad.csv:3") && err.contains("p_b"), "{err}");
+    assert!(
+        err.contains("bad.csv") && err.contains("line 3") && err.contains("`p_b` has no value here"),
+        "{err}"
+    );
 
     std::fs::write(&csv, "t,u,p_a,theta\n0,0,70,0\n").expect("write");
     let out = hydractl()

@@ -10,7 +10,7 @@ use hydractl_plant::PlantParams;
 use serde::Serialize;
 
 use super::fit::{encoder_step, nrmse_by_output, spread};
-use super::{predict, Prediction, Signals};
+use super::{predict, Part, Prediction, Signals};
 
 /// Speed below which the load counts as at rest, rad/s.
 pub const REST_SPEED: f64 = 0.02;
@@ -72,14 +72,35 @@ pub struct Comparison {
     pub validation: Range<usize>,
 }
 
-pub const METHOD: &str = "multiple shooting over 0.5 s segments: pressures from the measured pressures at each segment's start, driven by the command and the measured motion; angle from a least-squares initial angle and velocity per segment, driven by the measured torque D (p_a - p_b)";
+/// How the model is compared with a record of these signals, in words.
+pub fn method(signals: &Signals) -> String {
+    let mut parts = Vec::new();
+    for part in signals.parts() {
+        parts.push(match part {
+            Part::Hydraulic => "pressures from the measured pressures at each segment's start, driven by the command and the measured motion",
+            Part::Mechanical if signals.tau.is_some() => "angle from a least-squares initial angle and velocity per segment, driven by the measured torque tau",
+            Part::Mechanical => "angle from a least-squares initial angle and velocity per segment, driven by the measured torque D (p_a - p_b)",
+            Part::Whole => "angle from the command, each segment started from the smoothed angle, velocity and the load pressure its acceleration asks for",
+        });
+    }
+    format!("multiple shooting over 0.5 s segments: {}", parts.join("; "))
+}
+
+/// The outputs the record measures and the model predicts.
+pub fn measured_outputs(signals: &Signals) -> Vec<&'static str> {
+    if signals.parts().contains(&Part::Hydraulic) {
+        vec!["p_a", "p_b", "theta"]
+    } else {
+        vec!["theta"]
+    }
+}
 
 /// Compares the model with the measurements on the validation segment.
 pub fn compare(plant: &PlantParams, effects: &Effects, signals: &Signals, estimation_fraction: f64) -> Comparison {
     let validation = signals.split(estimation_fraction)..signals.len();
     let prediction = predict(plant, effects, signals, validation.clone());
     let nrmse = nrmse_by_output(signals, &prediction, validation.clone());
-    let outputs = ["p_a", "p_b", "theta"]
+    let outputs = measured_outputs(signals)
         .iter()
         .map(|o| OutputScore {
             output: (*o).to_owned(),
@@ -88,25 +109,27 @@ pub fn compare(plant: &PlantParams, effects: &Effects, signals: &Signals, estima
         })
         .collect();
     let v = validation.clone();
-    let pressure_spread = spread(&signals.p_a[v.clone()]).hypot(spread(&signals.p_b[v.clone()])) / 2f64.sqrt();
-    let submodels = BTreeMap::from([
-        ("hydraulic".to_owned(), nrmse["pressures"]),
-        ("mechanical".to_owned(), nrmse["theta"]),
-        (
+    let mut submodels = BTreeMap::from([(
+        "sensor_floor_theta".to_owned(),
+        encoder_step(&signals.theta) / 12f64.sqrt() / spread(&signals.theta[v.clone()]),
+    )]);
+    for part in signals.parts() {
+        let name = format!("{part:?}").to_lowercase();
+        submodels.insert(name, nrmse[part.output()]);
+    }
+    if nrmse.contains_key("pressures") {
+        let pressure_spread = spread(&signals.p_a[v.clone()]).hypot(spread(&signals.p_b[v.clone()])) / 2f64.sqrt();
+        submodels.insert(
             "sensor_floor_pressures".to_owned(),
             noise_std(&signals.p_a[v.clone()]).hypot(noise_std(&signals.p_b[v.clone()]))
                 / 2f64.sqrt()
                 / pressure_spread,
-        ),
-        (
-            "sensor_floor_theta".to_owned(),
-            encoder_step(&signals.theta) / 12f64.sqrt() / spread(&signals.theta[v.clone()]),
-        ),
-    ]);
+        );
+    }
     Comparison {
         validation_start_s: signals.t[validation.start],
         validation_end_s: signals.t[validation.end - 1],
-        method: METHOD.to_owned(),
+        method: method(signals),
         outputs,
         submodels,
         regimes: regimes(signals, &prediction, validation.clone()),
@@ -196,13 +219,14 @@ fn regimes(signals: &Signals, prediction: &Prediction, validation: Range<usize>)
         ("p_b", spread(&signals.p_b[validation.clone()])),
         ("theta", spread(&signals.theta[validation.clone()])),
     ]);
+    let measured = measured_outputs(signals);
     let mut sums: BTreeMap<&str, (usize, BTreeMap<&str, f64>)> = BTreeMap::new();
     for k in validation {
         let r = residuals(signals, prediction, k);
         for regime in regimes_of(signals, k, &reversal, thirds) {
             let entry = sums.entry(regime).or_default();
             entry.0 += 1;
-            for (output, e) in r {
+            for (output, e) in r.into_iter().filter(|(o, _)| measured.contains(o)) {
                 *entry.1.entry(output).or_default() += e * e;
             }
         }
@@ -242,7 +266,11 @@ fn residual_tests(signals: &Signals, prediction: &Prediction, validation: Range<
     };
     let u = centred(signals.u[validation.clone()].to_vec());
     let mut out = Vec::new();
+    let measured = measured_outputs(signals);
     for (index, output) in ["p_a", "p_b", "theta"].iter().enumerate() {
+        if !measured.contains(output) {
+            continue;
+        }
         let e = centred(
             validation
                 .clone()

@@ -33,11 +33,13 @@ pub const RESOLUTION_SHARE: f64 = 0.05;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct Baseline {
-    /// The RMS of the three outputs' validation NRMSEs (`p_a`, `p_b`,
-    /// `theta`): one figure for the model as a whole. `model fit` prints
-    /// each output's; they are in `validation_nrmse_by_output`.
+    /// The RMS of the measured outputs' validation NRMSEs (`p_a`, `p_b`,
+    /// `theta`, or `theta` alone without pressures): one figure for the
+    /// model as a whole. `model fit` prints each output's; they are in
+    /// `validation_nrmse_by_output`.
     pub validation_nrmse: f64,
-    /// Validation NRMSE per output (`p_a`, `p_b`, `pressures`, `theta`).
+    /// Validation NRMSE per output (`theta`, and `p_a`, `p_b`, `pressures`
+    /// where measured).
     pub validation_nrmse_by_output: BTreeMap<String, f64>,
     /// Fit per output, percent: 100 (1 − NRMSE).
     pub fit_percent: BTreeMap<String, f64>,
@@ -70,8 +72,19 @@ pub struct Candidate {
     pub uncertainty: Uncertainty,
 }
 
+/// An effect the record cannot show, and why.
+#[derive(Debug, Clone, Serialize)]
+pub struct NotJudged {
+    pub effect: String,
+    pub reason: String,
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct Diagnosis {
+    /// The parts of the model the record's signals let it fit.
+    pub parts: Vec<Part>,
+    /// The catalog's effects it could not judge, with why.
+    pub not_judged: Vec<NotJudged>,
     pub baseline: Baseline,
     pub candidates: Vec<Candidate>,
     /// One sentence: the effect to add, or that none helps significantly.
@@ -82,8 +95,6 @@ pub struct Diagnosis {
     pub fitted: BTreeMap<String, Model>,
 }
 
-pub(crate) const OUTPUTS: [&str; 3] = ["p_a", "p_b", "theta"];
-
 /// Diagnoses `model` (or a baseline fitted here from the default prior
 /// when `None`) on `signals`.
 pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -> Result<Diagnosis, ModelError> {
@@ -93,13 +104,13 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
     };
     // Each part refitted as hard as its candidates will be: the same
     // starts, the loss they share, to convergence.
-    let parts = [Part::Hydraulic, Part::Mechanical];
-    let losses = [
-        part_loss(signals, &start, Part::Hydraulic, options)?,
-        part_loss(signals, &start, Part::Mechanical, options)?,
-    ];
+    let parts = signals.parts();
+    let losses = parts
+        .iter()
+        .map(|part| part_loss(signals, &start, *part, options))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut base = start.clone();
-    let mut base_costs = [0.0; 2];
+    let mut base_costs = vec![0.0; parts.len()];
     let mut uncertainty = Uncertainty::default();
     for (i, part) in parts.iter().enumerate() {
         let (refit, fitted) = refit_part(signals, &base, *part, options, Some(losses[i]))?;
@@ -112,22 +123,36 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
     let validation = signals.split(options.estimation_fraction)..signals.len();
     let before_prediction = super::predict(&base.plant, &base_effects, signals, validation.clone());
     let before = super::fit::nrmse_by_output(signals, &before_prediction, validation.clone());
-    let fit_percent: BTreeMap<String, f64> = OUTPUTS
+    // The measured outputs: each chamber and the angle, not their sum.
+    let outputs: Vec<&str> = ["p_a", "p_b", "theta"]
+        .into_iter()
+        .filter(|o| before.contains_key(*o))
+        .collect();
+    let fit_percent: BTreeMap<String, f64> = outputs
         .iter()
         .map(|o| ((*o).to_owned(), 100.0 * (1.0 - before[*o])))
         .collect();
-    let overall = (OUTPUTS.iter().map(|o| before[*o].powi(2)).sum::<f64>() / OUTPUTS.len() as f64).sqrt();
-    let kinds: Vec<EffectKind> = EffectKind::ALL
-        .iter()
-        .copied()
-        .filter(|k| !base.effects.0.contains_key(k.name()))
-        .collect();
+    let overall = (outputs.iter().map(|o| before[*o].powi(2)).sum::<f64>() / outputs.len().max(1) as f64).sqrt();
+    let mut kinds = Vec::new();
+    let mut not_judged = Vec::new();
+    for kind in EffectKind::ALL {
+        if base.effects.0.contains_key(kind.name()) {
+            continue;
+        }
+        match signals.part_for(kind) {
+            Ok(part) => kinds.push((kind, part)),
+            Err(reason) => not_judged.push(NotJudged {
+                effect: kind.name().to_owned(),
+                reason,
+            }),
+        }
+    }
     let tried = kinds.len().max(1);
     // The candidates are independent: one per core.
     let judged: Vec<Result<(Candidate, Model), ModelError>> = kinds
         .par_iter()
-        .map(|kind| {
-            let part = Part::of(*kind);
+        .map(|(kind, part)| {
+            let (kind, part) = (kind, *part);
             let i = parts.iter().position(|p| *p == part).unwrap_or(0);
             let (mut refit, fitted) = fit_effect(signals, &base, *kind, options, losses[i])?;
             // Under the same loss from the same starts, a candidate that
@@ -170,6 +195,7 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
                 && not_itself.is_none();
             let evidence = evidence(
                 *kind,
+                part,
                 &params,
                 signals,
                 &refit,
@@ -236,6 +262,8 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
         _ => "no effect of the catalog helps significantly: the model explains this data as well as it can".to_owned(),
     };
     Ok(Diagnosis {
+        parts,
+        not_judged,
         baseline: Baseline {
             validation_nrmse: overall,
             validation_nrmse_by_output: before,
@@ -330,7 +358,7 @@ fn paired_test(
             (&signals.p_a, &before.p_a, &after.p_a),
             (&signals.p_b, &before.p_b, &after.p_b),
         ],
-        Part::Mechanical => vec![(&signals.theta, &before.theta, &after.theta)],
+        Part::Mechanical | Part::Whole => vec![(&signals.theta, &before.theta, &after.theta)],
     };
     let differences: Vec<f64> = super::segments(signals, validation)
         .filter_map(|segment| {
@@ -382,6 +410,7 @@ fn paired_test(
 /// The evidence for an effect in plain words, from the data and the fit.
 fn evidence(
     kind: EffectKind,
+    part: Part,
     params: &BTreeMap<String, f64>,
     signals: &Signals,
     refit: &Model,
@@ -399,14 +428,40 @@ fn evidence(
     let get = |key: &str| params.get(key).copied().unwrap_or(f64::NAN);
     let change = format!(
         "; with it the {} validation NRMSE goes {before:.4} → {after:.4}",
-        Part::of(kind).output()
+        part.output()
     );
     let what = match kind {
-        EffectKind::Deadzone => {
-            let width = get("width");
-            let share = share(&signals.u, |u| u.abs() < width);
+        // Without pressures the valve's effects show in the motion only.
+        EffectKind::Deadzone if part == Part::Whole => {
+            let (width, offset) = (get("width"), get("offset"));
+            let share = share(&signals.u, |u| (u - offset).abs() < width);
             format!(
-                "the pressures do not build while |u| < {width:.3} ({:.0}% of the samples) though the baseline says they should: valve dead-zone",
+                "the load does not move while the command stays within {width:.3} of {offset:+.3} ({:.0}% of the samples): valve dead-zone, its null offset {offset:+.3}",
+                100.0 * share
+            )
+        }
+        EffectKind::Saturation if part == Part::Whole => format!(
+            "beyond |u| = {:.3} the load moves no faster as the command grows: the spool is at its stop",
+            get("limit")
+        ),
+        EffectKind::TimeDelay if part == Part::Whole => format!(
+            "the motion answers the command {:.1} ms later than the valve and the load explain: a pure delay",
+            1e3 * get("delay_s")
+        ),
+        EffectKind::AsymmetricGain if part == Part::Whole => format!(
+            "the load moves {:.0}% as fast for negative commands as for positive ones: asymmetric flow gain",
+            100.0 * get("ratio")
+        ),
+        EffectKind::CoulombFriction if part == Part::Whole => format!(
+            "the load rests until the valve has built about {:.0} N·m, and moving costs {:.0} N·m more than viscous friction: Coulomb friction",
+            get("breakaway"),
+            get("coulomb")
+        ),
+        EffectKind::Deadzone => {
+            let (width, offset) = (get("width"), get("offset"));
+            let share = share(&signals.u, |u| (u - offset).abs() < width);
+            format!(
+                "the pressures do not build while the command stays within {width:.3} of {offset:+.3} ({:.0}% of the samples) though the baseline says they should: valve dead-zone",
                 100.0 * share
             )
         }
@@ -462,7 +517,7 @@ fn evidence(
         "paired t over {} validation segments ({:.1} effective): {:.1} against {:.1} (one-sided, α = {FAMILY_ALPHA} shared by the effects tried)",
         test.segments, test.effective, test.statistic, test.threshold
     );
-    let output = Part::of(kind).output();
+    let output = part.output();
     if found_nothing {
         format!("not significant: fitted as hard as the baseline, it lowers the estimation loss no further ({judged})")
     } else if let Some(why) = not_itself.filter(|_| test.statistic > test.threshold && after < before) {

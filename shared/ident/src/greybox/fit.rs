@@ -10,7 +10,7 @@ use hydractl_plant::{Effect, EffectKind, EffectsConfig, PlantParams};
 
 use serde::Serialize;
 
-use super::{predict_hydraulic, predict_mechanical, HistoryStep, Model, ModelError, Part, Prediction, Signals};
+use super::{HistoryStep, Model, ModelError, Part, Prediction, Signals};
 use crate::lm::{self, LmOptions};
 
 /// Iterations spent on each start of an effect before the best goes on.
@@ -108,6 +108,16 @@ fn baseline_knobs(part: Part) -> Vec<Free> {
             log(Knob::ValveDamping, 0.02, 5.0),
         ],
         Part::Mechanical => vec![log(Knob::Inertia, 1e-3, 1e5), log(Knob::ViscousFriction, 1e-3, 1e5)],
+        // From the command to the angle alone, the flow gain sets the
+        // speed, inertia against the (data sheet's) oil stiffness the
+        // hydraulic mode, and viscous friction with the valve's bandwidth
+        // its damping; the pressures' own coefficients are not observable.
+        Part::Whole => vec![
+            log(Knob::FlowGain, 1e-7, 1e-2),
+            log(Knob::ValveNaturalFrequency, 2.0, 2000.0),
+            log(Knob::Inertia, 1e-3, 1e5),
+            log(Knob::ViscousFriction, 1e-3, 1e5),
+        ],
     }
 }
 
@@ -116,7 +126,7 @@ fn baseline_knobs(part: Part) -> Vec<Free> {
 fn effect_knobs(kind: EffectKind) -> Vec<Free> {
     let k = |key| Knob::Effect(kind, key);
     match kind {
-        EffectKind::Deadzone => vec![linear(k("width"), 0.01, 0.0, 0.6)],
+        EffectKind::Deadzone => vec![linear(k("width"), 0.01, 0.0, 0.6), linear(k("offset"), 0.01, -0.3, 0.3)],
         EffectKind::Saturation => vec![linear(k("limit"), 0.01, 0.02, 1.0)],
         EffectKind::TimeDelay => vec![linear(k("delay_s"), 0.001, 0.0, 0.3)],
         EffectKind::AsymmetricGain => vec![log(k("ratio"), 0.1, 10.0)],
@@ -304,7 +314,7 @@ impl Loss {
         // as a few large errors while the load sticks: least squares.
         let threshold = match part {
             Part::Hydraulic => 1.345 * 1.4826 * median_abs(&initial).max(1e-9),
-            Part::Mechanical => f64::INFINITY,
+            Part::Mechanical | Part::Whole => f64::INFINITY,
         };
         Ok(Loss { spreads, threshold })
     }
@@ -328,7 +338,7 @@ impl Loss {
                     push((signals.p_b[k] - prediction.p_b[k]) / self.spreads[1]);
                 }
             }
-            Part::Mechanical => {
+            Part::Mechanical | Part::Whole => {
                 for k in range {
                     push((signals.theta[k] - prediction.theta[k]) / self.spreads[0]);
                 }
@@ -342,7 +352,7 @@ impl Loss {
 fn output_spreads(part: Part, signals: &Signals, range: Range<usize>) -> [f64; 2] {
     match part {
         Part::Hydraulic => [spread(&signals.p_a[range.clone()]), spread(&signals.p_b[range])],
-        Part::Mechanical => [spread(&signals.theta[range]), 1.0],
+        Part::Mechanical | Part::Whole => [spread(&signals.theta[range]), 1.0],
     }
 }
 
@@ -362,10 +372,7 @@ fn predict_part(
     range: Range<usize>,
 ) -> Prediction {
     let mut prediction = Prediction::new(signals.len());
-    match part {
-        Part::Hydraulic => predict_hydraulic(plant, effects, signals, range, &mut prediction),
-        Part::Mechanical => predict_mechanical(plant, effects, signals, range, &mut prediction),
-    }
+    super::predict_part_into(part, plant, effects, signals, range, &mut prediction);
     prediction
 }
 
@@ -435,7 +442,7 @@ fn fit_part(
     let final_residuals = residuals(&result.params).unwrap_or_default();
     let stride = match part {
         Part::Hydraulic => 2,
-        Part::Mechanical => 1,
+        Part::Mechanical | Part::Whole => 1,
     };
     let uncertainty = uncertainty(knobs, &working, &result, &final_residuals, stride);
     Ok(PartFit {
@@ -616,7 +623,8 @@ pub(crate) fn encoder_step(theta: &[f64]) -> f64 {
 }
 
 /// Validation NRMSE per output: ‖y − ŷ‖ / ‖y − mean(y)‖ on `range`, for
-/// `p_a`, `p_b`, `theta`, and `pressures` (both chambers together).
+/// `theta`, and where the record has them `p_a`, `p_b` and `pressures`
+/// (both chambers together).
 pub fn validation_nrmse(
     model_plant: &PlantParams,
     effects: &Effects,
@@ -639,22 +647,24 @@ pub(crate) fn nrmse_by_output(
         let total = range.clone().map(|k| (y[k] - mean).powi(2)).sum::<f64>().max(1e-30);
         (error, total)
     };
-    let a = sums(&signals.p_a, &prediction.p_a);
-    let b = sums(&signals.p_b, &prediction.p_b);
     let t = sums(&signals.theta, &prediction.theta);
-    BTreeMap::from([
-        ("p_a".to_owned(), (a.0 / a.1).sqrt()),
-        ("p_b".to_owned(), (b.0 / b.1).sqrt()),
-        ("pressures".to_owned(), ((a.0 + b.0) / (a.1 + b.1)).sqrt()),
-        ("theta".to_owned(), (t.0 / t.1).sqrt()),
-    ])
+    let mut out = BTreeMap::from([("theta".to_owned(), (t.0 / t.1).sqrt())]);
+    // The pressures are outputs only where the hydraulic part is fitted.
+    if signals.parts().contains(&Part::Hydraulic) {
+        let a = sums(&signals.p_a, &prediction.p_a);
+        let b = sums(&signals.p_b, &prediction.p_b);
+        out.insert("p_a".to_owned(), (a.0 / a.1).sqrt());
+        out.insert("p_b".to_owned(), (b.0 / b.1).sqrt());
+        out.insert("pressures".to_owned(), ((a.0 + b.0) / (a.1 + b.1)).sqrt());
+    }
+    out
 }
 
 /// Fits the baseline (no effects) from the prior's parameters: each part
 /// to convergence, under the loss of its own first fit.
 pub fn fit_baseline(signals: &Signals, prior: &PlantParams, options: FitOptions) -> Result<Model, ModelError> {
     let mut model = Model::new(*prior, Effects::none());
-    for part in [Part::Hydraulic, Part::Mechanical] {
+    for part in signals.parts() {
         // The prior's residuals are the model error of a wrong prior: a
         // first fit under its loss, then to convergence under the fitted one's.
         let first = refit_part(signals, &model, part, options, None)?.0;
@@ -662,10 +672,10 @@ pub fn fit_baseline(signals: &Signals, prior: &PlantParams, options: FitOptions)
     }
     let effects = model.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
-    model.history.push(HistoryStep {
-        step: "baseline".to_owned(),
-        validation_nrmse: validation_nrmse(&model.plant, &effects, signals, validation),
-    });
+    let errors = validation_nrmse(&model.plant, &effects, signals, validation);
+    model
+        .history
+        .push(HistoryStep::of("baseline", &model.plant, &model.effects, errors));
     Ok(model)
 }
 
@@ -692,7 +702,7 @@ pub(crate) fn refit_part(
         Some(l) => l,
         None => Loss::from_model(part, &start, signals, estimation.clone())?,
     };
-    let knobs = part_knobs(part, &start, None);
+    let knobs = part_knobs(part, &start, None, signals);
     let mut best: Option<PartFit> = None;
     for base in bases(part, &start, signals, estimation.clone()) {
         let Ok(fitted) = fit_part(part, &base, &knobs, signals, estimation.clone(), options, loss) else {
@@ -715,7 +725,11 @@ pub(crate) fn refit_part(
 /// parameters from the best of several starts, then all of that part's
 /// parameters together. The history gains a step.
 pub fn fit(signals: &Signals, model: &Model, kind: EffectKind, options: FitOptions) -> Result<Model, ModelError> {
-    let loss = part_loss(signals, model, Part::of(kind), options)?;
+    let part = signals.part_for(kind).map_err(|reason| ModelError::NotJudged {
+        effect: kind.name(),
+        reason,
+    })?;
+    let loss = part_loss(signals, model, part, options)?;
     Ok(fit_effect(signals, model, kind, options, loss)?.0)
 }
 
@@ -731,9 +745,12 @@ pub(crate) fn fit_effect(
     if start.has(kind) {
         return Err(ModelError::AlreadyIn(kind.name()));
     }
-    let part = Part::of(kind);
+    let part = signals.part_for(kind).map_err(|reason| ModelError::NotJudged {
+        effect: kind.name(),
+        reason,
+    })?;
     let estimation = 0..signals.split(options.estimation_fraction);
-    let knobs = part_knobs(part, &start, Some(kind));
+    let knobs = part_knobs(part, &start, Some(kind), signals);
     // Starts are screened on the first third of the estimation segment.
     // For the mechanical part, a few iterations from each start with all
     // of the part's parameters free: inertia and viscous friction absorb
@@ -751,7 +768,7 @@ pub(crate) fn fit_effect(
             // The pressures' baseline absorbs little of a hydraulic effect:
             // judging each start as it is suffices.
             Part::Hydraulic => candidate,
-            Part::Mechanical => {
+            Part::Mechanical | Part::Whole => {
                 let quick = FitOptions {
                     max_iterations: SCREENING_ITERATIONS,
                     ..options
@@ -776,19 +793,18 @@ pub(crate) fn fit_effect(
     };
     let effects = out.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
-    out.history.push(HistoryStep {
-        step: kind.name().to_owned(),
-        validation_nrmse: validation_nrmse(&out.plant, &effects, signals, validation),
-    });
+    let errors = validation_nrmse(&out.plant, &effects, signals, validation);
+    out.history
+        .push(HistoryStep::of(kind.name(), &out.plant, &out.effects, errors));
     Ok((out, fitted))
 }
 
 /// A part's knobs: the baseline's, and those of every effect of the part
 /// the model has (and of `adding`).
-fn part_knobs(part: Part, model: &Working, adding: Option<EffectKind>) -> Vec<Free> {
+fn part_knobs(part: Part, model: &Working, adding: Option<EffectKind>, signals: &Signals) -> Vec<Free> {
     let mut knobs = baseline_knobs(part);
     for present in EffectKind::ALL {
-        if Part::of(present) == part && (model.has(present) || Some(present) == adding) {
+        if signals.part_for(present) == Ok(part) && (model.has(present) || Some(present) == adding) {
             knobs.extend(effect_knobs(present));
         }
     }

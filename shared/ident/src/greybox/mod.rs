@@ -23,10 +23,10 @@ mod diagnose;
 mod fit;
 mod signals;
 
-pub use compare::{compare, Comparison, CorrelationTest, OutputScore, RegimeScore};
-pub use diagnose::{diagnose, Candidate, Diagnosis};
+pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore};
+pub use diagnose::{diagnose, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
-pub use signals::{Signals, REQUIRED_COLUMNS};
+pub use signals::{Signals, COLUMNS, REQUIRED_COLUMNS};
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -53,6 +53,8 @@ pub enum ModelError {
     Plant(#[from] PlantError),
     #[error("effect `{0}` is already in the model")]
     AlreadyIn(&'static str),
+    #[error("`{effect}` cannot be judged from this record: {reason}")]
+    NotJudged { effect: &'static str, reason: String },
     #[error("the fit failed: {0}")]
     Fit(String),
 }
@@ -65,6 +67,9 @@ pub enum Part {
     Hydraulic,
     /// Torque → angle, through the encoder.
     Mechanical,
+    /// Command → angle, through valve, chambers, body and encoder: the
+    /// model of a machine without pressure transducers.
+    Whole,
 }
 
 impl Part {
@@ -87,7 +92,16 @@ impl Part {
     pub fn output(self) -> &'static str {
         match self {
             Part::Hydraulic => "pressures",
-            Part::Mechanical => "theta",
+            Part::Mechanical | Part::Whole => "theta",
+        }
+    }
+
+    /// What the part maps, in words for the report.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Part::Hydraulic => "hydraulic: valve command and measured motion → chamber pressures",
+            Part::Mechanical => "mechanical: measured torque → angle",
+            Part::Whole => "whole: valve command → angle (no pressures measured)",
         }
     }
 }
@@ -99,6 +113,34 @@ pub struct HistoryStep {
     pub step: String,
     /// Validation NRMSE per output after this step.
     pub validation_nrmse: BTreeMap<String, f64>,
+    /// The model as this step left it, so that a report can show the
+    /// residuals before and after each step (absent in older files).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plant: Option<PlantParams>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub effects: Option<EffectsConfig>,
+}
+
+impl HistoryStep {
+    /// A step named `step` that left `model` with these validation errors.
+    pub fn of(
+        step: &str,
+        plant: &PlantParams,
+        effects: &EffectsConfig,
+        validation_nrmse: BTreeMap<String, f64>,
+    ) -> Self {
+        Self {
+            step: step.to_owned(),
+            validation_nrmse,
+            plant: Some(*plant),
+            effects: Some(effects.clone()),
+        }
+    }
+
+    /// The model this step left, when the file recorded it.
+    pub fn model(&self) -> Option<(PlantParams, Effects)> {
+        Some((self.plant?, self.effects.as_ref()?.build().ok()?))
+    }
 }
 
 /// A fitted model: plant parameters, effects, and how it got there.
@@ -181,12 +223,110 @@ impl Prediction {
     }
 }
 
-/// Predicts both parts over `range`.
+/// Predicts every part the record can test over `range`.
 pub fn predict(plant: &PlantParams, effects: &Effects, signals: &Signals, range: Range<usize>) -> Prediction {
     let mut out = Prediction::new(signals.len());
-    predict_hydraulic(plant, effects, signals, range.clone(), &mut out);
-    predict_mechanical(plant, effects, signals, range, &mut out);
+    for part in signals.parts() {
+        predict_part_into(part, plant, effects, signals, range.clone(), &mut out);
+    }
     out
+}
+
+/// Predicts one part's outputs over `range` into `out`.
+pub(crate) fn predict_part_into(
+    part: Part,
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+    out: &mut Prediction,
+) {
+    match part {
+        Part::Hydraulic => predict_hydraulic(plant, effects, signals, range, out),
+        Part::Mechanical => predict_mechanical(plant, effects, signals, range, out),
+        Part::Whole => predict_whole(plant, effects, signals, range, out),
+    }
+}
+
+/// The longest integration step of the whole path, s: the valve and the
+/// hydraulic mode need it at any sampling rate (50 Hz data is stepped at
+/// 20 substeps per sample).
+const MAX_WHOLE_STEP_S: f64 = 1e-3;
+
+/// Command → angle, segment by segment. Each segment starts from a state
+/// estimated from the measurement alone, the same for every model: the
+/// smoothed angle and velocity, and the load pressure that the smoothed
+/// acceleration asks of the model's body (the chambers' mean at the
+/// neutral pressure). The spool runs through the whole record unbroken,
+/// driven by the (delayed) command.
+pub fn predict_whole(
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+    out: &mut Prediction,
+) {
+    let substeps = ((signals.dt / MAX_WHOLE_STEP_S).ceil() as usize).max(1);
+    // The delay is applied here, interpolated between samples, so that the
+    // fit sees it move continuously; the plant gets the delayed command.
+    let mut undelayed = *effects;
+    undelayed.time_delay = None;
+    let Ok(mut machine) = hydractl_plant::Plant::new(*plant, undelayed, signals.dt / substeps as f64) else {
+        return;
+    };
+    let neutral = machine.neutral_pressure();
+    let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
+    let mut next_start = 0;
+    let mut follower = 0.0;
+    for k in 0..range.end {
+        if next_start < segment_starts.len() && k == segment_starts[next_start] {
+            next_start += 1;
+            let now = machine.state();
+            let (angle, mut velocity) = (signals.theta_smooth[k], signals.velocity[k]);
+            let stuck = effects
+                .coulomb_friction
+                .is_some_and(|f| velocity.abs() < f.stribeck_velocity);
+            if stuck {
+                velocity = 0.0;
+            }
+            // The encoder lags the actuator by half the play while moving.
+            let lag = effects.backlash.map_or(0.0, |b| 0.5 * b.width * velocity.signum());
+            let motion: mechanics::Motion = [angle + lag, velocity, angle + lag, velocity];
+            let sliding = match effects.coulomb_friction {
+                Some(f) if !stuck => velocity.signum() * f.sliding_level(velocity.abs()),
+                _ => 0.0,
+            };
+            let hydraulic_torque =
+                plant.inertia * signals.acceleration[k] - mechanics::net_torque(plant, effects, &motion, 0.0) + sliding;
+            let load_pressure = hydraulic_torque / plant.displacement;
+            machine.restart_from(hydractl_plant::PlantState {
+                spool: now.spool,
+                spool_rate: now.spool_rate,
+                p_a: hydraulics::bound_pressure(plant, neutral + 0.5 * load_pressure),
+                p_b: hydraulics::bound_pressure(plant, neutral - 0.5 * load_pressure),
+                angle: angle + lag,
+                velocity,
+                load_angle: angle + lag,
+                load_velocity: velocity,
+                stuck,
+            });
+            follower = angle;
+        }
+        if k >= range.start {
+            let shaft = machine.state().angle;
+            follower = match effects.backlash {
+                Some(b) => b.follow(shaft, follower),
+                None => shaft,
+            };
+            out.theta[k] = encoder_reading(effects, follower);
+            out.p_a[k] = machine.state().p_a;
+            out.p_b[k] = machine.state().p_b;
+        }
+        if k + 1 >= range.end {
+            break;
+        }
+        machine.advance(delayed_command(signals, effects, k), substeps);
+    }
 }
 
 /// The segments of `range`, each at most one shooting segment long.

@@ -1,20 +1,26 @@
 //! The measured signals the grey-box model is compared with, in SI units,
 //! with the smoothed angle and velocity the model's segments start from.
 
-use hydractl_plant::PlantParams;
+use hydractl_plant::{EffectKind, PlantParams};
 
-use super::{ModelError, SEGMENT_S};
+use super::{ModelError, Part, SEGMENT_S};
 use crate::Dataset;
 
-/// The columns the model tools need, as the issue names them.
-pub const REQUIRED_COLUMNS: [&str; 5] = ["t", "u", "p_a", "p_b", "theta"];
+/// The columns every record needs: time and the encoder's angle. Besides
+/// them, the valve command `u` or a measured torque `tau` drives the model.
+pub const REQUIRED_COLUMNS: [&str; 2] = ["t", "theta"];
+
+/// The columns the model can use, with their units.
+pub const COLUMNS: &str =
+    "t (s), theta (rad), and u (valve command, [-1, 1]), p_a and p_b (bar), tau (N·m) where measured";
 
 /// Half-width of the smoothing that turns encoder counts into a velocity, s.
 /// Wide enough that one count of a 4000-count encoder moves the velocity by
 /// under 0.01 rad/s, narrow against the 13 rad/s hydraulic mode.
 const SMOOTHING_HALF_WIDTH_S: f64 = 0.02;
 
-/// Measured data at a uniform sample time, SI units.
+/// Measured data at a uniform sample time, SI units. A signal that was not
+/// measured holds NaN, and the parts that need it are not fitted.
 #[derive(Debug, Clone)]
 pub struct Signals {
     pub source: String,
@@ -25,29 +31,74 @@ pub struct Signals {
     /// Chamber pressures, Pa.
     pub p_a: Vec<f64>,
     pub p_b: Vec<f64>,
+    /// A torque measured directly (a load cell, a motor's current), N·m.
+    pub tau: Option<Vec<f64>>,
     /// Encoder angle, rad.
     pub theta: Vec<f64>,
     /// The angle and velocity of a local straight-line fit (zero phase).
     pub theta_smooth: Vec<f64>,
     pub velocity: Vec<f64>,
+    /// The velocity's slope by the same local line, rad/s².
+    pub acceleration: Vec<f64>,
+    /// Whether the record has the valve command and the chamber pressures.
+    pub has_command: bool,
+    pub has_pressures: bool,
 }
 
 impl Signals {
-    /// From a dataset with the columns `t,u,p_a,p_b,theta` (s, command, bar, bar, rad).
+    /// From a dataset with the columns `t` (s) and `theta` (rad) and any
+    /// of `u` (command), `p_a`, `p_b` (bar) and `tau` (N·m): a column that
+    /// is absent, or empty in every row, was not measured.
     pub fn from_dataset(data: &Dataset) -> Result<Self, ModelError> {
         let source = data.source.display().to_string();
-        let t = data.column("t")?.to_vec();
-        let u = data.column("u")?.to_vec();
-        let bar =
-            |name: &str| -> Result<Vec<f64>, ModelError> { Ok(data.column(name)?.iter().map(|p| p * 1e5).collect()) };
-        let p_a = bar("p_a")?;
-        let p_b = bar("p_b")?;
-        let theta = data.column("theta")?.to_vec();
-        let dt = data.sample_time()?;
         let fail = |reason: String| ModelError::Signals {
             source_name: source.clone(),
             reason,
         };
+        let t = data.column("t")?.to_vec();
+        let theta = data.column("theta")?.to_vec();
+        // A column measured in some rows only is a defect of the file, not
+        // a sensor the machine lacks.
+        let optional = |name: &str| -> Result<Option<Vec<f64>>, ModelError> {
+            let Ok(column) = data.column(name) else {
+                return Ok(None);
+            };
+            let missing = column.iter().filter(|v| !v.is_finite()).count();
+            if missing == column.len() {
+                return Ok(None);
+            }
+            if let Some(i) = column.iter().position(|v| !v.is_finite()) {
+                return Err(fail(format!(
+                    "line {}: column `{name}` has no value here (empty or NaN) but has values in other rows \
+                     (leave it empty in every row if the machine has no such sensor)",
+                    i + 2
+                )));
+            }
+            Ok(Some(column.to_vec()))
+        };
+        let u = optional("u")?;
+        let p_a = optional("p_a")?;
+        let p_b = optional("p_b")?;
+        let tau = optional("tau")?;
+        let has_pressures = match (&p_a, &p_b) {
+            (Some(_), Some(_)) => true,
+            (None, None) => false,
+            (Some(_), None) => return Err(fail("column `p_a` without `p_b`: both chambers or neither".to_owned())),
+            (None, Some(_)) => return Err(fail("column `p_b` without `p_a`: both chambers or neither".to_owned())),
+        };
+        if u.is_none() && tau.is_none() && !has_pressures {
+            return Err(fail(
+                "neither the valve command `u`, the chamber pressures `p_a`, `p_b` nor a measured torque `tau`: \
+                 nothing drives the model"
+                    .to_owned(),
+            ));
+        }
+        let n = t.len();
+        let bar = |p: Option<Vec<f64>>| p.map_or_else(|| vec![f64::NAN; n], |p| p.iter().map(|v| v * 1e5).collect());
+        let has_command = u.is_some();
+        let u = u.unwrap_or_else(|| vec![0.0; n]);
+        let (p_a, p_b) = (bar(p_a), bar(p_b));
+        let dt = data.sample_time()?;
         if dt.is_nan() || dt <= 0.0 {
             return Err(fail("fewer than two samples".to_owned()));
         }
@@ -77,6 +128,7 @@ impl Signals {
         }
         let half_width = ((SMOOTHING_HALF_WIDTH_S / dt).round() as usize).max(1);
         let (theta_smooth, velocity) = local_line(&theta, dt, half_width);
+        let acceleration = local_line(&velocity, dt, half_width).1;
         Ok(Self {
             source,
             dt,
@@ -84,9 +136,62 @@ impl Signals {
             u,
             p_a,
             p_b,
+            tau,
             theta,
             theta_smooth,
             velocity,
+            acceleration,
+            has_command,
+            has_pressures,
+        })
+    }
+
+    /// The parts of the model this record can test: the hydraulic part
+    /// needs the command and the pressures; the mechanical part a torque,
+    /// measured or from the pressures; with the command alone, the whole
+    /// path from command to angle.
+    pub fn parts(&self) -> Vec<Part> {
+        let mut parts = Vec::new();
+        if self.has_command && self.has_pressures {
+            parts.push(Part::Hydraulic);
+        }
+        if self.has_pressures || self.tau.is_some() {
+            parts.push(Part::Mechanical);
+        } else if self.has_command {
+            parts.push(Part::Whole);
+        }
+        parts
+    }
+
+    /// The part of the model through which this record shows `kind`, or
+    /// why it cannot show it.
+    pub fn part_for(&self, kind: EffectKind) -> Result<Part, String> {
+        let parts = self.parts();
+        let own = Part::of(kind);
+        if parts.contains(&own) {
+            return Ok(own);
+        }
+        if parts.contains(&Part::Whole) {
+            return match kind {
+                EffectKind::OrificeFlow => Err(
+                    "no chamber pressures: the √Δp flow shows only in how the pressures approach supply and tank"
+                        .to_owned(),
+                ),
+                EffectKind::LoadFlexibility => Err(
+                    "no pressures or torque: with the valve between command and motion, a flexible load's ring \
+                     cannot be told from the hydraulic mode's"
+                        .to_owned(),
+                ),
+                _ => Ok(Part::Whole),
+            };
+        }
+        Err(match own {
+            Part::Hydraulic if !self.has_command => {
+                "no valve command `u`: the axis is driven by the measured torque, the hydraulic part is not fitted"
+                    .to_owned()
+            }
+            Part::Hydraulic => "no chamber pressures `p_a`, `p_b`: the hydraulic part is not fitted".to_owned(),
+            _ => "no torque `tau` or pressures: the mechanical part is not fitted".to_owned(),
         })
     }
 
@@ -98,9 +203,13 @@ impl Signals {
         self.t.is_empty()
     }
 
-    /// The measured hydraulic torque D (p_a − p_b) at sample `k`, N·m.
+    /// The torque driving the mechanical part at sample `k`, N·m: the one
+    /// measured directly, else the hydraulic torque D (p_a − p_b).
     pub fn torque(&self, plant: &PlantParams, k: usize) -> f64 {
-        plant.displacement * (self.p_a[k] - self.p_b[k])
+        match &self.tau {
+            Some(tau) => tau[k],
+            None => plant.displacement * (self.p_a[k] - self.p_b[k]),
+        }
     }
 
     /// The first sample of the validation segment: the estimation segment
@@ -151,6 +260,74 @@ fn local_line(x: &[f64], dt: f64, half_width: usize) -> (Vec<f64>, Vec<f64>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Five seconds at 1 kHz of the named columns, each a gentle sine, with
+    /// `holes` (column, row) left empty.
+    fn record(names: &[&str], holes: &[(&str, usize)]) -> Dataset {
+        let n = 5000;
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 1e-3).collect();
+        let mut columns = vec![("t", t.clone())];
+        for &name in names {
+            let mut column: Vec<f64> = t.iter().map(|t| 0.1 * (t * 3.0).sin()).collect();
+            for &(hole, row) in holes {
+                if hole == name {
+                    column[row] = f64::NAN;
+                }
+            }
+            columns.push((name, column));
+        }
+        Dataset::from_columns("record.csv", columns)
+    }
+
+    fn reason(data: &Dataset) -> String {
+        match Signals::from_dataset(data) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("accepted"),
+        }
+    }
+
+    #[test]
+    fn the_parts_fitted_follow_the_sensors() {
+        let parts = |names: &[&str]| Signals::from_dataset(&record(names, &[])).expect("valid").parts();
+        assert_eq!(
+            parts(&["u", "p_a", "p_b", "theta"]),
+            [Part::Hydraulic, Part::Mechanical]
+        );
+        assert_eq!(parts(&["u", "theta"]), [Part::Whole]);
+        assert_eq!(parts(&["tau", "theta"]), [Part::Mechanical]);
+        assert_eq!(parts(&["u", "tau", "theta"]), [Part::Mechanical]);
+        assert_eq!(parts(&["p_a", "p_b", "theta"]), [Part::Mechanical]);
+        // A column empty in every row is a sensor the machine lacks.
+        let all_empty: Vec<(&str, usize)> = (0..5000).flat_map(|i| [("p_a", i), ("p_b", i)]).collect();
+        let data = record(&["u", "p_a", "p_b", "theta"], &all_empty);
+        assert_eq!(Signals::from_dataset(&data).expect("valid").parts(), [Part::Whole]);
+    }
+
+    #[test]
+    fn what_cannot_be_judged_says_why() {
+        let motion = Signals::from_dataset(&record(&["u", "theta"], &[])).expect("valid");
+        assert_eq!(motion.part_for(EffectKind::Deadzone), Ok(Part::Whole));
+        assert_eq!(motion.part_for(EffectKind::Backlash), Ok(Part::Whole));
+        assert!(motion
+            .part_for(EffectKind::OrificeFlow)
+            .is_err_and(|r| r.contains("pressures")));
+        let torque = Signals::from_dataset(&record(&["tau", "theta"], &[])).expect("valid");
+        assert_eq!(torque.part_for(EffectKind::CoulombFriction), Ok(Part::Mechanical));
+        assert!(torque.part_for(EffectKind::Deadzone).is_err_and(|r| r.contains("`u`")));
+    }
+
+    #[test]
+    fn a_column_missing_in_some_rows_names_its_line() {
+        let text = reason(&record(&["u", "p_a", "p_b", "theta"], &[("p_b", 41)]));
+        assert!(
+            text.contains("record.csv") && text.contains("line 43") && text.contains("`p_b`"),
+            "{text}"
+        );
+        let text = reason(&record(&["u", "p_a", "theta"], &[]));
+        assert!(text.contains("`p_a` without `p_b`"), "{text}");
+        let text = reason(&record(&["theta"], &[]));
+        assert!(text.contains("nothing drives the model"), "{text}");
+    }
 
     #[test]
     fn local_line_is_exact_on_a_line() {
