@@ -1,6 +1,7 @@
 //! What the vehicle computer needs of a run: locked memory and no page
 //! fault on the loop.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use hydractl_system_tests::*;
@@ -255,15 +256,58 @@ impl FakeJournal {
         Some(Self { socket, made })
     }
 
-    /// Every entry sent until the senders fall silent.
-    fn entries(&self) -> Vec<String> {
-        let mut entries = Vec::new();
-        let mut buf = vec![0u8; 64 * 1024];
-        while let Ok(n) = self.socket.recv(&mut buf) {
-            entries.push(String::from_utf8_lossy(&buf[..n]).into_owned());
-        }
-        entries
+    /// Reads every entry as it comes, as journald does: a datagram socket
+    /// nobody reads holds only `net.unix.max_dgram_qlen` (10) messages,
+    /// and then blocks its senders. The entries come back when `stop` is
+    /// set and the senders have fallen silent.
+    fn drain(
+        &self,
+        stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    ) -> std::thread::JoinHandle<Vec<BTreeMap<String, String>>> {
+        let socket = self.socket.try_clone().expect("journal socket");
+        std::thread::spawn(move || {
+            let mut entries = Vec::new();
+            let mut buf = vec![0u8; 64 * 1024];
+            loop {
+                match socket.recv(&mut buf) {
+                    Ok(0) => {}
+                    Ok(n) => entries.push(journal_fields(&buf[..n])),
+                    Err(_) if stop.load(std::sync::atomic::Ordering::Relaxed) => return entries,
+                    Err(_) => {}
+                }
+            }
+        })
     }
+}
+
+/// One entry of journald's native protocol: `KEY=value` lines, or `KEY`, a
+/// newline, the value's length as a little-endian u64, the value, a newline
+/// (for values that may hold newlines; tracing-journald sends most so).
+fn journal_fields(mut datagram: &[u8]) -> BTreeMap<String, String> {
+    let mut fields = BTreeMap::new();
+    while let Some(end) = datagram.iter().position(|&b| b == b'\n' || b == b'=') {
+        let key = String::from_utf8_lossy(&datagram[..end]).into_owned();
+        if datagram[end] == b'=' {
+            let line_end = datagram[end..]
+                .iter()
+                .position(|&b| b == b'\n')
+                .map_or(datagram.len(), |n| end + n);
+            fields.insert(key, String::from_utf8_lossy(&datagram[end + 1..line_end]).into_owned());
+            datagram = &datagram[(line_end + 1).min(datagram.len())..];
+        } else {
+            let Some(length) = datagram.get(end + 1..end + 9) else {
+                break;
+            };
+            let length = u64::from_le_bytes(length.try_into().expect("eight bytes")) as usize;
+            let start = end + 9;
+            let Some(value) = datagram.get(start..start + length) else {
+                break;
+            };
+            fields.insert(key, String::from_utf8_lossy(value).into_owned());
+            datagram = &datagram[(start + length + 1).min(datagram.len())..];
+        }
+    }
+    fields
 }
 
 impl Drop for FakeJournal {
@@ -293,6 +337,8 @@ fn as_a_service_every_process_logs_to_the_journal_with_its_fields() {
     let meta = stderr.metadata().expect("metadata");
     // As systemd sets it for a service whose output goes to the journal.
     let stream = format!("{}:{}", meta.dev(), meta.ino());
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let reader = journal.drain(stop.clone());
     let status = hydractl()
         .args(["run", "--duration", "0"])
         .env(hydractl_bus::PREFIX_ENV, scope.prefix())
@@ -303,21 +349,31 @@ fn as_a_service_every_process_logs_to_the_journal_with_its_fields() {
         .stderr(stderr)
         .status()
         .expect("hydractl run");
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let entries = reader.join().expect("journal reader");
     assert!(status.success());
-    let entries = journal.entries();
     let started_valve = entries
         .iter()
-        .find(|e| e.contains("MESSAGE=started valve"))
+        .find(|e| e.get("MESSAGE").is_some_and(|m| m.starts_with("started valve")))
         .unwrap_or_else(|| panic!("the supervisor's start of the valve in the journal: {entries:#?}"));
-    for field in [
-        "SYSLOG_IDENTIFIER=supervisor",
-        "PROCESS=supervisor",
-        "CHILD=valve",
-        "CHILD_PID=",
-        "PRIORITY=5",
+    for (field, value) in [
+        ("SYSLOG_IDENTIFIER", "supervisor"),
+        ("PROCESS", "supervisor"),
+        ("CHILD", "valve"),
+        ("PRIORITY", "5"),
     ] {
-        assert!(started_valve.contains(field), "{field} in {started_valve}");
+        assert_eq!(
+            started_valve.get(field).map(String::as_str),
+            Some(value),
+            "{started_valve:?}"
+        );
     }
+    assert!(
+        started_valve
+            .get("CHILD_PID")
+            .is_some_and(|pid| pid.parse::<u32>().is_ok()),
+        "{started_valve:?}"
+    );
     let text = std::fs::read_to_string(&stderr_path).expect("stderr");
     assert!(
         !text.contains("started valve"),
