@@ -195,7 +195,14 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
         .expect("export");
     assert!(export.status.success(), "{}", String::from_utf8_lossy(&export.stderr));
     let text = std::fs::read_to_string(&csv).expect("csv");
-    assert!(text.starts_with("t,u,p_a,p_b,theta,theta_ref\n"));
+    assert!(
+        text.starts_with(
+            "t,u,p_a,p_b,theta,theta_ref,omega_est,torque,blended_velocity,friction_comp,\
+             position_output,torque_ref,torque_command,valve_requested\n"
+        ),
+        "{}",
+        text.lines().next().unwrap_or_default()
+    );
     // The plant waits for the chain before its first reading: every reading
     // is answered, the first too, and has its row.
     assert_eq!(channel(&summary, service::POSITION).first_seq, 0);
@@ -211,6 +218,21 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
         .output()
         .expect("fit");
     assert!(fit.status.success(), "{}", String::from_utf8_lossy(&fit.stderr));
+    // Every stage's signal is data for `ident`, here the closed torque loop
+    // of the cascade: its reference to the torque measured.
+    let torque_loop = hydractl()
+        .args(["ident", "tf", "--data"])
+        .arg(&file)
+        .args(["--input", "torque_ref", "--output", "torque", "--poles", "2", "--zeros", "0", "--json"])
+        .output()
+        .expect("ident tf");
+    assert!(
+        torque_loop.status.success(),
+        "{}",
+        String::from_utf8_lossy(&torque_loop.stderr)
+    );
+    let identified: serde_json::Value = serde_json::from_slice(&torque_loop.stdout).expect("json");
+    assert!(identified["fit_percent"].as_f64().is_some_and(f64::is_finite), "{identified}");
 
     // Decoded by two readers we did not write: as PlotJuggler's Python
     // tools and as Foxglove itself would.

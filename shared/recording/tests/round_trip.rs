@@ -14,6 +14,8 @@ fn sensor(seq: u64) -> SensorSample {
         angle: 0.001 * seq as f64,
         p_a: 8.0e6,
         p_b: 7.0e6,
+        velocity: 0.25 + 0.001 * seq as f64,
+        torque: 50.0,
         valid: 7,
         ..SensorSample::default()
     }
@@ -25,6 +27,7 @@ fn valve(seq: u64) -> ValveSample {
         sensor_time_ns: 1_000_000_000 + seq * 1_000_000,
         stage_time_ns: 1_000_000_000 + seq * 1_000_000 + 60_000,
         command: -0.5 + 0.001 * seq as f64,
+        requested: -0.4 + 0.001 * seq as f64,
         ..ValveSample::default()
     }
 }
@@ -137,6 +140,12 @@ fn export_joins_by_sequence_on_the_loop_clock() {
     assert!((rows[10].p_a - 80.0).abs() < 1e-12);
     assert!((rows[10].theta - 0.010).abs() < 1e-15);
     assert_eq!(rows[10].theta_ref, 0.5);
+    // The sensor stage's signals come along; a stage not recorded (no
+    // friction or torque loop here) is NaN, not a number it never sent.
+    assert_eq!(rows[10].omega_est, sensor(10).velocity);
+    assert_eq!(rows[10].torque, sensor(10).torque);
+    assert!(rows[10].torque_ref.is_nan() && rows[10].blended_velocity.is_nan());
+    assert_eq!(rows[10].valve_requested, valve(10).requested);
 }
 
 #[test]

@@ -52,7 +52,11 @@ enum IdentMethod {
 
 #[derive(clap::Args)]
 pub struct IdentTfArgs {
-    /// CSV with a header row, a `t` column and the two columns named below.
+    /// CSV with a header row, a `t` column and the two columns named below;
+    /// or a recording (`.mcap`), whose columns are those of `mcap export-csv`:
+    /// `u,p_a,p_b,theta,theta_ref` and the stages' `omega_est`, `torque`,
+    /// `blended_velocity`, `friction_comp`, `position_output`, `torque_ref`,
+    /// `torque_command`, `valve_requested`.
     #[arg(long)]
     data: PathBuf,
     #[arg(long)]

@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, RunScope, PREFIX_ENV};
 use hydractl_ident::Dataset;
 use hydractl_processes::recording::{republisher, Republisher};
-use hydractl_recording::{export_rows, read_messages, summarize, write_csv, MODEL_COLUMNS};
+use hydractl_recording::{export_rows, read_messages, summarize, write_csv, MODEL_COLUMNS, SIGNAL_COLUMNS};
 
 #[derive(clap::Args)]
 pub struct RecordArgs {
@@ -243,9 +243,10 @@ pub fn mcap(command: McapCommand) -> Result<()> {
             let export = exported(&file)?;
             write_csv(&export.rows, &out)?;
             crate::emit(&format!(
-                "{} rows of {} to {}\n",
+                "{} rows of {} (and the stages' {}) to {}\n",
                 export.rows.len(),
                 MODEL_COLUMNS.join(","),
+                SIGNAL_COLUMNS.join(","),
                 out.display()
             ))
         }
@@ -311,17 +312,25 @@ pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
         let rows = exported(path)?.rows;
         let column = |f: fn(&hydractl_recording::ModelRow) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
-        let data = Dataset::from_columns(
-            &path.display().to_string(),
-            vec![
-                ("t", column(|r| r.t)),
-                ("u", column(|r| r.u)),
-                ("p_a", column(|r| r.p_a)),
-                ("p_b", column(|r| r.p_b)),
-                ("theta", column(|r| r.theta)),
-                ("theta_ref", column(|r| r.theta_ref)),
-            ],
-        );
+        let mut columns = vec![
+            ("t", column(|r| r.t)),
+            ("u", column(|r| r.u)),
+            ("p_a", column(|r| r.p_a)),
+            ("p_b", column(|r| r.p_b)),
+            ("theta", column(|r| r.theta)),
+            ("theta_ref", column(|r| r.theta_ref)),
+            ("omega_est", column(|r| r.omega_est)),
+            ("torque", column(|r| r.torque)),
+            ("blended_velocity", column(|r| r.blended_velocity)),
+            ("friction_comp", column(|r| r.friction_comp)),
+            ("position_output", column(|r| r.position_output)),
+            ("torque_ref", column(|r| r.torque_ref)),
+            ("torque_command", column(|r| r.torque_command)),
+            ("valve_requested", column(|r| r.valve_requested)),
+        ];
+        // A stage the run did not have is not a column of its data.
+        columns.retain(|(_, c)| c.iter().any(|v| v.is_finite()));
+        let data = Dataset::from_columns(&path.display().to_string(), columns);
         for name in required {
             data.column(name)?;
         }
