@@ -223,7 +223,17 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
     let torque_loop = hydractl()
         .args(["ident", "tf", "--data"])
         .arg(&file)
-        .args(["--input", "torque_ref", "--output", "torque", "--poles", "2", "--zeros", "0", "--json"])
+        .args([
+            "--input",
+            "torque_ref",
+            "--output",
+            "torque",
+            "--poles",
+            "2",
+            "--zeros",
+            "0",
+            "--json",
+        ])
         .output()
         .expect("ident tf");
     assert!(
@@ -232,7 +242,10 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
         String::from_utf8_lossy(&torque_loop.stderr)
     );
     let identified: serde_json::Value = serde_json::from_slice(&torque_loop.stdout).expect("json");
-    assert!(identified["fit_percent"].as_f64().is_some_and(f64::is_finite), "{identified}");
+    assert!(
+        identified["fit_percent"].as_f64().is_some_and(f64::is_finite),
+        "{identified}"
+    );
 
     // Decoded by two readers we did not write: as PlotJuggler's Python
     // tools and as Foxglove itself would.

@@ -85,6 +85,8 @@ fn tf(args: IdentTfArgs) -> Result<()> {
         IdentMethod::Pem => hydractl_ident::Method::Pem,
         IdentMethod::Oe => hydractl_ident::Method::Oe,
     };
+    let progress = crate::progress::Progress::new("ident tf", args.json);
+    progress.step(&format!("fitting {} → {}", args.input, args.output), 0, 1);
     let fit = hydractl_ident::identify_tf(
         data.column(&args.input)?,
         data.column(&args.output)?,
@@ -104,6 +106,7 @@ fn tf(args: IdentTfArgs) -> Result<()> {
             args.data.display()
         )
     })?;
+    drop(progress);
     let pairs: Vec<serde_json::Value> = fit
         .tf
         .resonances()

@@ -8,6 +8,7 @@ mod control;
 mod doctor;
 mod ident;
 mod model;
+mod progress;
 mod recording;
 mod report;
 mod run;
@@ -344,15 +345,31 @@ fn run_sim(args: SimArgs) -> Result<()> {
     }
     let duration = args.duration.context("--duration is required")?;
     // Rows go to the CSV as they are made: memory does not grow with the run.
+    let progress = progress::Progress::new("sim", false);
+    let whole_seconds = duration.ceil() as usize;
+    let mut next_second = 0.0;
+    let mut shown = |t: f64| {
+        if t >= next_second {
+            progress.step("simulated seconds", t as usize, whole_seconds);
+            next_second = t.floor() + 1.0;
+        }
+    };
     let s = &match &args.out {
         Some(out) => {
             let mut rows = CsvRows::create(out)?;
-            let summary = simulate_streaming(&config, &effects, duration, |r| rows.write(r))?;
+            let summary = simulate_streaming(&config, &effects, duration, |r| {
+                shown(r.t);
+                rows.write(r)
+            })?;
             rows.finish()?;
             summary
         }
-        None => simulate_streaming(&config, &effects, duration, |_| Ok(()))?,
+        None => simulate_streaming(&config, &effects, duration, |r| {
+            shown(r.t);
+            Ok(())
+        })?,
     };
+    drop(progress);
     emit(&format!(
         "{} ({} outer, {} inner), {} effect(s): max |e| = {:.4} rad, rms e = {:.4} rad, torque power > 10 rad/s = {:.1} (N·m)², {:.0} s simulated in {:.3} s ({:.0}× real time)\n",
         s.structure,

@@ -9,6 +9,7 @@ use hydractl_ident::Dataset;
 use hydractl_plant::EffectKind;
 
 use crate::emit;
+use crate::progress::Progress;
 
 #[derive(clap::Subcommand)]
 pub enum ModelCommand {
@@ -158,14 +159,19 @@ fn fit(args: FitArgs) -> Result<()> {
         None => hydractl_config::Config::default_sim()?.plant,
     };
     let signals = load_signals(&args.data.data)?;
+    let progress = Progress::new("model fit", false);
+    let steps = 1 + kinds.len();
+    progress.step("fitting the baseline", 0, steps);
     let mut model = greybox::fit_baseline(&signals, &prior, options)
         .with_context(|| format!("fitting the baseline to {}", args.data.data.display()))?;
     let mut text = format!("baseline: {}\n", errors_line(&model));
-    for kind in kinds {
+    for (i, kind) in kinds.into_iter().enumerate() {
+        progress.step(&format!("adding {kind}"), 1 + i, steps);
         model = greybox::fit(&signals, &model, kind, options)
             .with_context(|| format!("adding `{kind}` on {}", args.data.data.display()))?;
         text += &format!("+ {kind}: {}\n", errors_line(&model));
     }
+    drop(progress);
     model.save(&args.out)?;
     text += &format!("model written to {}\n", args.out.display());
     emit(&text)
@@ -226,8 +232,10 @@ fn compare(args: CompareArgs) -> Result<()> {
 fn diagnose(args: DiagnoseArgs) -> Result<()> {
     let signals = load_signals(&args.data.data)?;
     let model = args.model.as_deref().map(load_model).transpose()?;
-    let diagnosis = greybox::diagnose(&signals, model.as_ref(), options(&args.data)?)
+    let progress = Progress::new("model diagnose", args.json);
+    let diagnosis = greybox::diagnose_with(&signals, model.as_ref(), options(&args.data)?, &progress)
         .with_context(|| format!("diagnosing {}", args.data.data.display()))?;
+    drop(progress);
     if args.json {
         return emit(&(serde_json::to_string_pretty(&diagnosis)? + "\n"));
     }
@@ -284,8 +292,11 @@ fn add(args: AddArgs) -> Result<()> {
         &signals,
         signals.split(options.estimation_fraction)..signals.len(),
     );
+    let progress = Progress::new("model add", false);
+    progress.step(&format!("adding {kind}"), 0, 1);
     let refit = greybox::fit(&signals, &model, kind, options)
         .with_context(|| format!("adding `{kind}` on {}", args.data.data.display()))?;
+    drop(progress);
     let after = refit
         .history
         .last()

@@ -197,8 +197,11 @@ const SECOND: RGBColor = RGBColor(30, 110, 200);
 
 pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) -> Result<()> {
     let effects = model.effects()?;
+    let progress = crate::progress::Progress::new("model report", false);
+    progress.step("comparing", 0, 1);
     let comparison = greybox::compare(&model.plant, &effects, signals, options.estimation_fraction);
-    let diagnosis = greybox::diagnose(signals, Some(model), options)?;
+    let diagnosis = greybox::diagnose_with(signals, Some(model), options, &progress)?;
+    drop(progress);
     let p = &comparison.prediction;
     let v = comparison.validation.clone();
     let step = stride(&v);

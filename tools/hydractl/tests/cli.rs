@@ -215,12 +215,21 @@ fn run_ok(command: &mut Command) -> String {
     String::from_utf8(out.stdout).expect("utf-8")
 }
 
+/// As [`run_ok`], and nothing on stderr: the progress bars of long work
+/// draw only on a terminal, never into a pipe or a log.
+fn run_silent(command: &mut Command) -> String {
+    let out = command.output().expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.stderr.is_empty(), "{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).expect("utf-8")
+}
+
 #[test]
 fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
     let dir = scratch("model");
     let csv = deadzone_data(&dir);
     let baseline = dir.join("baseline.toml");
-    run_ok(
+    run_silent(
         hydractl()
             .args(["model", "fit", "--data"])
             .arg(&csv)
@@ -228,7 +237,7 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
             .arg(&baseline),
     );
 
-    let json = run_ok(
+    let json = run_silent(
         hydractl()
             .args(["model", "diagnose", "--json", "--data"])
             .arg(&csv)
@@ -254,7 +263,7 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
     assert_eq!(diagnosis["candidates"].as_array().map(Vec::len), Some(10));
 
     let added = dir.join("added.toml");
-    let text = run_ok(
+    let text = run_silent(
         hydractl()
             .args(["model", "add", "deadzone", "--data"])
             .arg(&csv)
@@ -267,7 +276,7 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
     let model = std::fs::read_to_string(&added).expect("model");
     assert!(model.contains("[effects.deadzone]"), "{model}");
 
-    let json = run_ok(
+    let json = run_silent(
         hydractl()
             .args(["model", "compare", "--json", "--data"])
             .arg(&csv)
@@ -287,7 +296,7 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
     assert!(comparison["residual_tests"].as_array().is_some_and(|r| r.len() == 6));
 
     let report = dir.join("report.html");
-    run_ok(
+    run_silent(
         hydractl()
             .args(["model", "report", "--data"])
             .arg(&csv)

@@ -98,13 +98,47 @@ pub struct Diagnosis {
 /// Diagnoses `model` (or a baseline fitted here from the default prior
 /// when `None`) on `signals`.
 pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -> Result<Diagnosis, ModelError> {
+    diagnose_with(signals, model, options, &super::Silent)
+}
+
+/// [`diagnose`], telling `progress` as each fit finishes: the baseline
+/// from the prior (without a model), each part refitted, each candidate.
+pub fn diagnose_with(
+    signals: &Signals,
+    model: Option<&Model>,
+    options: FitOptions,
+    progress: &dyn super::Progress,
+) -> Result<Diagnosis, ModelError> {
+    let parts = signals.parts();
+    let candidates = EffectKind::ALL
+        .iter()
+        .filter(|k| model.is_none_or(|m| !m.effects.0.contains_key(k.name())) && signals.part_for(**k).is_ok())
+        .count();
+    let total = usize::from(model.is_none()) + parts.len() + candidates;
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let finished = |what: &str| {
+        let done = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        progress.fitted(what, done, total);
+    };
+    progress.fitted(
+        if model.is_none() {
+            "the baseline from the prior"
+        } else {
+            "the baseline"
+        },
+        0,
+        total,
+    );
     let start = match model {
         Some(m) => m.clone(),
-        None => fit_baseline(signals, &hydractl_plant::PlantParams::default(), options)?,
+        None => {
+            let fitted = fit_baseline(signals, &hydractl_plant::PlantParams::default(), options)?;
+            finished("the baseline from the prior");
+            fitted
+        }
     };
     // Each part refitted as hard as its candidates will be: the same
     // starts, the loss they share, to convergence.
-    let parts = signals.parts();
     let losses = parts
         .iter()
         .map(|part| part_loss(signals, &start, *part, options))
@@ -114,6 +148,7 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
     let mut uncertainty = Uncertainty::default();
     for (i, part) in parts.iter().enumerate() {
         let (refit, fitted) = refit_part(signals, &base, *part, options, Some(losses[i]))?;
+        finished(&format!("the baseline's {} part", part.name()));
         base = refit;
         base_costs[i] = fitted.cost;
         uncertainty.std.extend(fitted.uncertainty.std);
@@ -155,6 +190,7 @@ pub fn diagnose(signals: &Signals, model: Option<&Model>, options: FitOptions) -
             let (kind, part) = (kind, *part);
             let i = parts.iter().position(|p| *p == part).unwrap_or(0);
             let (mut refit, fitted) = fit_effect(signals, &base, *kind, options, losses[i])?;
+            finished(kind.name());
             // Under the same loss from the same starts, a candidate that
             // ends no lower than the baseline found nothing the baseline
             // lacks: it is the baseline, and can never beat it.

@@ -24,7 +24,7 @@ mod fit;
 mod signals;
 
 pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore};
-pub use diagnose::{diagnose, Candidate, Diagnosis, NotJudged};
+pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
 pub use signals::{Signals, COLUMNS, REQUIRED_COLUMNS};
 
@@ -38,6 +38,21 @@ use serde::{Deserialize, Serialize};
 
 /// Length of one shooting segment, s.
 pub const SEGMENT_S: f64 = 0.5;
+
+/// What a long fit reports as it goes, for a progress display: the
+/// library prints nothing itself.
+pub trait Progress: Sync {
+    /// `done` of `total` fits are finished; `what` was the last to finish
+    /// or, with `done` 0, the first to begin.
+    fn fitted(&self, what: &str, done: usize, total: usize);
+}
+
+/// No progress display.
+pub struct Silent;
+
+impl Progress for Silent {
+    fn fitted(&self, _what: &str, _done: usize, _total: usize) {}
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
@@ -85,6 +100,15 @@ impl Part {
             | EffectKind::Backlash
             | EffectKind::Quantization
             | EffectKind::LoadFlexibility => Part::Mechanical,
+        }
+    }
+
+    /// The part's name, as the JSON's `parts` gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Part::Hydraulic => "hydraulic",
+            Part::Mechanical => "mechanical",
+            Part::Whole => "whole",
         }
     }
 
