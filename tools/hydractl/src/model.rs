@@ -223,9 +223,12 @@ fn compare(args: CompareArgs) -> Result<()> {
             t.max_abs,
             t.lag_of_max,
             t.bound,
-            if t.within_bounds { "passes" } else { "fails" }
+            t.outcome()
         );
     }
+    text += "  autocorrelation: an output-error model leaves its sensors' filtered noise in the residual, \
+             white or not; cross_correlation_u: lags ≥ 1 judged (at ≤ 0 the controller answers the residual), \
+             Bartlett's bound\n";
     emit(&text)
 }
 

@@ -354,13 +354,14 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
             .map(|(i, r)| ((t.first_lag + i as i64) as f64, *r))
             .collect();
         let caption = format!(
-            "{} of the {} residual: max |r| {:.3} at lag {} against the 99% bound {:.3} ({}).",
+            "{} of the {} residual: max |r| {:.3} at lag {} against the 99% bound {:.3} ({}): {}.",
             t.test.replace('_', " "),
             t.output,
             t.max_abs,
             t.lag_of_max,
             t.bound,
-            if t.within_bounds { "passes" } else { "fails" }
+            t.outcome(),
+            t.note
         );
         add(
             &caption,

@@ -293,7 +293,17 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
         "{comparison}"
     );
     assert!(comparison["regimes"].as_array().is_some_and(|r| r.len() >= 6));
-    assert!(comparison["residual_tests"].as_array().is_some_and(|r| r.len() == 6));
+    let tests = comparison["residual_tests"].as_array().expect("residual tests");
+    assert_eq!(tests.len(), 6);
+    // The model has the effect the data was made with: every test that
+    // bears on the model passes, and the whiteness tests say why they do not bear.
+    for t in tests {
+        match t["test"].as_str() {
+            Some("autocorrelation") => assert_eq!(t["judged"], false, "{t}"),
+            _ => assert!(t["judged"] == true && t["within_bounds"] == true, "{t}"),
+        }
+        assert!(t["note"].as_str().is_some_and(|n| !n.is_empty()), "{t}");
+    }
 
     let report = dir.join("report.html");
     run_silent(

@@ -46,11 +46,19 @@ pub struct CorrelationTest {
     pub output: String,
     /// `autocorrelation` (whiteness) or `cross_correlation_u`.
     pub test: String,
-    /// ± this is the 99% confidence band for a white residual.
+    /// ± this is the 99% band a correct model's residual stays within:
+    /// for the cross-correlation, Bartlett's, from both signals' own
+    /// autocorrelation; for the autocorrelation, a white residual's.
     pub bound: f64,
+    /// The largest |r| over the lags judged, and its lag.
     pub max_abs: f64,
     pub lag_of_max: i64,
     pub within_bounds: bool,
+    /// Whether the test bears on the model: the autocorrelation does not
+    /// (see `note`).
+    pub judged: bool,
+    /// What the test can and cannot say about this model.
+    pub note: String,
     /// The correlation at lags `first_lag`, `first_lag` + 1, …
     pub first_lag: i64,
     pub values: Vec<f64>,
@@ -257,14 +265,30 @@ fn regimes(signals: &Signals, prediction: &Prediction, validation: Range<usize>)
         .collect()
 }
 
+/// The residual tests of MATLAB's `resid`, with bounds that hold for a
+/// correct model of this kind. The model is output error, driven by
+/// measured signals in closed loop, and restarted from the measurements at
+/// each segment:
+/// - its residual is the sensors' noise through their filters plus each
+///   segment's start, coloured for a correct model too: the
+///   autocorrelation is shown against a white residual's band, not judged;
+/// - the cross-correlation with the command is judged at lags ≥ 1 only
+///   (the residual against earlier commands: what the model should have
+///   explained); at lags ≤ 0 the controller answers the residual, as any
+///   closed loop does;
+/// - its band is Bartlett's, var r(τ) = (1/N) Σ_m ρ_ee(m) ρ_uu(m), summed
+///   over one segment's lags (segments start afresh, so the residual does
+///   not correlate further): both signals' own correlation widens it.
 fn residual_tests(signals: &Signals, prediction: &Prediction, validation: Range<usize>) -> Vec<CorrelationTest> {
     let n = validation.len();
-    let bound = CONFIDENCE_Z / (n as f64).sqrt();
+    let white_bound = CONFIDENCE_Z / (n as f64).sqrt();
     let centred = |x: Vec<f64>| {
         let mean = x.iter().sum::<f64>() / x.len().max(1) as f64;
         x.into_iter().map(|v| v - mean).collect::<Vec<f64>>()
     };
     let u = centred(signals.u[validation.clone()].to_vec());
+    let segment = ((super::SEGMENT_S / signals.dt).round() as usize).clamp(1, n.saturating_sub(1).max(1));
+    let u_auto = autocorrelation(&u, segment);
     let mut out = Vec::new();
     let measured = measured_outputs(signals);
     for (index, output) in ["p_a", "p_b", "theta"].iter().enumerate() {
@@ -277,14 +301,54 @@ fn residual_tests(signals: &Signals, prediction: &Prediction, validation: Range<
                 .map(|k| residuals(signals, prediction, k)[index].1)
                 .collect(),
         );
-        let auto: Vec<f64> = (0..=MAX_LAG).map(|lag| correlation(&e, &e, lag as i64)).collect();
-        out.push(test(output, "autocorrelation", bound, 0, auto, 1));
+        let e_auto = autocorrelation(&e, segment);
+        let auto: Vec<f64> = e_auto.iter().take(MAX_LAG + 1).copied().collect();
+        let mut whiteness = test(output, "autocorrelation", white_bound, 0, auto, 1);
+        whiteness.judged = false;
+        whiteness.note = "not judged: an output-error model predicts the output, not its noise; a correct one \
+                          leaves the sensors' filtered noise and each segment's start in its residual, which \
+                          are not white"
+            .to_owned();
+        out.push(whiteness);
+        let variance =
+            (e_auto[0] * u_auto[0] + 2.0 * (1..e_auto.len()).map(|m| e_auto[m] * u_auto[m]).sum::<f64>()) / n as f64;
+        let bound = CONFIDENCE_Z * variance.max(0.0).sqrt().max(1.0 / (n as f64).sqrt());
         let cross: Vec<f64> = (-(MAX_LAG as i64)..=MAX_LAG as i64)
             .map(|lag| correlation(&e, &u, lag))
             .collect();
-        out.push(test(output, "cross_correlation_u", bound, -(MAX_LAG as i64), cross, 0));
+        let mut against_u = test(
+            output,
+            "cross_correlation_u",
+            bound,
+            -(MAX_LAG as i64),
+            cross,
+            MAX_LAG + 1,
+        );
+        against_u.note = "lags ≥ 1 judged (earlier commands the model should have explained); at lags ≤ 0 the \
+                          controller answers the residual; Bartlett's band from both signals' autocorrelation, wide when the \
+                          residual is strongly coloured, so that `diagnose` is the sharper test of a missing effect"
+            .to_owned();
+        out.push(against_u);
     }
     out
+}
+
+impl CorrelationTest {
+    /// `passes`, `fails`, or `not judged`, as the tools print it.
+    pub fn outcome(&self) -> &'static str {
+        match (self.judged, self.within_bounds) {
+            (false, _) => "not judged",
+            (true, true) => "passes",
+            (true, false) => "fails",
+        }
+    }
+}
+
+/// Normalized autocorrelation of `x` at lags 0 ..= `max_lag`.
+fn autocorrelation(x: &[f64], max_lag: usize) -> Vec<f64> {
+    (0..=max_lag.min(x.len().saturating_sub(1)))
+        .map(|lag| correlation(x, x, lag as i64))
+        .collect()
 }
 
 /// Normalized correlation of e(k) with x(k − lag).
@@ -320,6 +384,8 @@ fn test(output: &str, name: &str, bound: f64, first_lag: i64, values: Vec<f64>, 
         max_abs,
         lag_of_max,
         within_bounds: max_abs <= bound,
+        judged: true,
+        note: String::new(),
         first_lag,
         values,
     }
