@@ -345,8 +345,9 @@ pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
     let config = hydractl_config::Config::default_sim()?;
     let hidden = hydractl_plant::Effect::parse("deadzone")?;
     let mut text = format!(
-        "bench diagnose: the whole catalog ({} effects), 1 kHz closed-loop data with a hidden dead-zone, one thread, median of {}\n",
+        "bench diagnose: the whole catalog ({} effects), 1 kHz closed-loop data with a hidden dead-zone, the candidates on {} threads, median of {}\n",
         EffectKind::ALL.len(),
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
         repeat.max(1)
     );
     for &duration in durations {
