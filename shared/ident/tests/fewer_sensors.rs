@@ -5,6 +5,8 @@
 //! was fitted and what could not be judged is said in `parts` and
 //! `not_judged`.
 
+mod common;
+
 use hydractl_ident::greybox::{diagnose, Diagnosis, FitOptions, Part, Signals};
 use hydractl_ident::Dataset;
 use hydractl_sim::foreign::{foreign_plant, ForeignData, Hidden};
@@ -57,7 +59,7 @@ fn significant(diagnosis: &Diagnosis) -> Vec<(&str, &str)> {
 /// The hidden effect first and significant, its main parameter within
 /// 25 %; the first three of the ranking when not.
 fn named_first(diagnosis: &Diagnosis, hidden: Hidden) -> Result<(), String> {
-    named_first_within(diagnosis, hidden, 0.25)
+    common::named_first_within(diagnosis, hidden, 0.25)
 }
 
 /// Without pressures, a torque (friction, a load) is seen only through the
@@ -68,27 +70,6 @@ fn torque_tolerance(hidden: Hidden) -> f64 {
         Hidden::CoulombFriction { .. } | Hidden::GravityLoad { .. } => 0.5,
         _ => 0.25,
     }
-}
-
-fn named_first_within(diagnosis: &Diagnosis, hidden: Hidden, tolerance: f64) -> Result<(), String> {
-    let first = &diagnosis.candidates[0];
-    let (key, truth) = hidden.main();
-    let fitted = first.params.get(key).copied().unwrap_or(f64::NAN);
-    if first.effect == hidden.name() && first.significant && (fitted - truth).abs() <= tolerance * truth.abs() {
-        return Ok(());
-    }
-    let ranking: Vec<String> = diagnosis
-        .candidates
-        .iter()
-        .take(3)
-        .map(|c| {
-            format!(
-                "{} (t {:.1} / {:.1}, {:?})",
-                c.effect, c.statistic, c.threshold, c.params
-            )
-        })
-        .collect();
-    Err(format!("{}: {}", hidden.name(), ranking.join("; ")))
 }
 
 #[test]
@@ -136,7 +117,9 @@ fn without_pressures_the_motion_effects_are_named_first() {
     ];
     let missed: Vec<String> = hidden
         .into_iter()
-        .filter_map(|h| named_first_within(&diagnosed(21, Some(h), Sensors::Motion, 1), h, torque_tolerance(h)).err())
+        .filter_map(|h| {
+            common::named_first_within(&diagnosed(21, Some(h), Sensors::Motion, 1), h, torque_tolerance(h)).err()
+        })
         .collect();
     assert!(missed.len() <= 1, "missed {} of 4: {missed:#?}", missed.len());
 }

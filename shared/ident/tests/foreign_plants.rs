@@ -9,6 +9,8 @@
 //! 25 % (all but one of the eight), and on every data set no effect at its null value beating the
 //! baseline.
 
+mod common;
+
 use hydractl_ident::greybox::{diagnose, Diagnosis, FitOptions, Signals};
 use hydractl_ident::Dataset;
 use hydractl_sim::foreign::{foreign_plant, Hidden};
@@ -74,25 +76,7 @@ fn nothing_significant(seed: u64) {
 /// Whether the hidden effect comes first and significant, with its main
 /// parameter within 25 % of the truth; the ranking when not.
 fn named_first(seed: u64, hidden: Hidden) -> Result<(), String> {
-    let diagnosis = diagnosed(seed, Some(hidden));
-    let first = &diagnosis.candidates[0];
-    let (key, truth) = hidden.main();
-    let fitted = first.params.get(key).copied().unwrap_or(f64::NAN);
-    if first.effect == hidden.name() && first.significant && (fitted - truth).abs() <= 0.25 * truth.abs() {
-        return Ok(());
-    }
-    let ranking: Vec<String> = diagnosis
-        .candidates
-        .iter()
-        .take(3)
-        .map(|c| {
-            format!(
-                "{} (t {:.1} / {:.1}, {:?})",
-                c.effect, c.statistic, c.threshold, c.params
-            )
-        })
-        .collect();
-    Err(format!("{} seed {seed}: {}", hidden.name(), ranking.join("; ")))
+    common::named_first_within(&diagnosed(seed, Some(hidden)), hidden, 0.25).map_err(|e| format!("seed {seed}: {e}"))
 }
 
 #[test]

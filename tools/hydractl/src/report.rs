@@ -116,14 +116,26 @@ fn chart(title: &str, x_label: &str, y_label: &str, all: &[Series], dots: bool, 
                 .map_err(|e| draw(e.to_string()))?;
             }
         }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK.mix(0.3))
-            .draw()
-            .map_err(|e| draw(e.to_string()))?;
-        root.present().map_err(|e| draw(e.to_string()))?;
+        finish(&mut c, &root).map_err(draw)?;
     }
     Ok(svg)
+}
+
+/// The report's charts: both axes in f64.
+type Plane = Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>;
+
+/// The legend, and the drawing written out.
+fn finish<'a, 'b: 'a>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Plane>,
+    root: &DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK.mix(0.3))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    root.present().map_err(|e| e.to_string())
 }
 
 /// Bars per step, one colour per output, labelled by the step's name.
@@ -181,12 +193,7 @@ fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor
             }))
             .map_err(|e| draw(e.to_string()))?;
         }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK.mix(0.3))
-            .draw()
-            .map_err(|e| draw(e.to_string()))?;
-        root.present().map_err(|e| draw(e.to_string()))?;
+        finish(&mut c, &root).map_err(draw)?;
     }
     Ok(svg)
 }
