@@ -4,6 +4,7 @@
 //! silently falls back to a default; a file may start from a `base` and
 //! give only what differs.
 
+pub mod compensate;
 mod control;
 mod deploy;
 mod supervisor;

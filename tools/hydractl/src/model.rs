@@ -24,6 +24,26 @@ pub enum ModelCommand {
     Add(AddArgs),
     /// Write a self-contained HTML page with the plots that show where the model fails.
     Report(ReportArgs),
+    /// Write a config whose compensators use what the model learned (the
+    /// controllers only: the plant it simulates stays the base config's).
+    Compensate(CompensateArgs),
+}
+
+#[derive(clap::Args)]
+pub struct CompensateArgs {
+    /// The fitted model (`model fit`, `model add`).
+    #[arg(long)]
+    model: PathBuf,
+    /// The config to tune [default: the built-in config/sim.toml].
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The tuned config.
+    #[arg(long)]
+    out: PathBuf,
+    /// Print {"out", "changes": [{"key", "from", "to", "effect", "reason"}],
+    /// "not_compensated": [{"effect", "reason"}]}.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -109,7 +129,62 @@ pub fn run(command: ModelCommand) -> Result<()> {
             options(&args.data)?,
             &args.out,
         ),
+        ModelCommand::Compensate(args) => compensate(args),
     }
+}
+
+fn compensate(args: CompensateArgs) -> Result<()> {
+    let model = load_model(&args.model)?;
+    let base = hydractl_config::Config::load_or_default(args.config.as_deref())?;
+    let tuned = hydractl_config::compensate::compensate(&base, &model.effects()?);
+    let source = args
+        .config
+        .as_ref()
+        .map_or("the built-in config/sim.toml".to_owned(), |p| p.display().to_string());
+    let mut text = format!(
+        "# Tuned by `hydractl model compensate` from {} on {source}: the controllers\n\
+         # use what the model learned; the plant is the base config's.\n",
+        args.model.display()
+    );
+    for change in &tuned.changes {
+        text += &format!(
+            "# {} = {} (was {}): {}\n",
+            change.key, change.to, change.from, change.reason
+        );
+    }
+    text += "\n";
+    text += &tuned.config.to_toml();
+    // What is written must load as the config it is.
+    hydractl_config::Config::parse(&text, &args.out)
+        .with_context(|| format!("the tuned config for {} does not load", args.out.display()))?;
+    std::fs::write(&args.out, &text).with_context(|| format!("cannot write {}", args.out.display()))?;
+    if args.json {
+        let json = serde_json::json!({
+            "out": args.out,
+            "changes": tuned.changes,
+            "not_compensated": tuned.not_compensated,
+        });
+        return emit(&(serde_json::to_string_pretty(&json)? + "\n"));
+    }
+    let mut out = String::new();
+    for change in &tuned.changes {
+        out += &format!(
+            "{:<44} {:>10} → {:<10} {}: {}\n",
+            change.key,
+            format!("{:.4}", change.from),
+            format!("{:.4}", change.to),
+            change.effect,
+            change.reason
+        );
+    }
+    if tuned.changes.is_empty() {
+        out += "no compensator changed: the model has no effect a compensator answers\n";
+    }
+    for n in &tuned.not_compensated {
+        out += &format!("not compensated: {}: {}\n", n.effect, n.reason);
+    }
+    out += &format!("tuned config written to {}\n", args.out.display());
+    emit(&out)
 }
 
 pub fn load_signals(path: &Path) -> Result<Signals> {

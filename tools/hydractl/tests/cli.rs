@@ -1,6 +1,6 @@
 //! `hydractl` as a user runs it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn hydractl() -> Command {
@@ -608,4 +608,102 @@ fn pid_iae_says_when_its_gains_mean_little() {
         .expect("runs");
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert!(!json["warnings"].as_array().expect("warnings").is_empty());
+}
+
+/// The tracking error's RMS of `hydractl sim` under `config` (the built-in
+/// default when `None`) on a plant with `effect`, from its summary.
+fn tracking_rms(dir: &Path, config: Option<&Path>, effect: Option<&str>, csv: Option<&Path>) -> f64 {
+    let summary = dir.join("summary.json");
+    let mut command = hydractl();
+    command
+        .args(["sim", "--duration", "60", "--seed", "5", "--summary-json"])
+        .arg(&summary);
+    if let Some(config) = config {
+        command.arg("--config").arg(config);
+    }
+    if let Some(effect) = effect {
+        command.args(["--effect", effect]);
+    }
+    if let Some(csv) = csv {
+        command.arg("--out").arg(csv);
+    }
+    run_silent(&mut command);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    summary["rms_tracking_error_rad"].as_f64().expect("rms")
+}
+
+/// The path a user takes: record, fit, add the effect diagnose names,
+/// compensate, run again under the tuned config on the same plant.
+#[test]
+fn compensating_a_fitted_deadzone_lowers_the_tracking_error_on_the_machine() {
+    let dir = scratch("compensate");
+    let effect = "deadzone:width=0.08";
+    let csv = dir.join("run.csv");
+    let before = tracking_rms(&dir, None, Some(effect), Some(&csv));
+    let baseline = dir.join("baseline.toml");
+    run_silent(
+        hydractl()
+            .args(["model", "fit", "--data"])
+            .arg(&csv)
+            .arg("--out")
+            .arg(&baseline),
+    );
+    let diagnosis: serde_json::Value = serde_json::from_str(&run_silent(
+        hydractl()
+            .args(["model", "diagnose", "--json", "--data"])
+            .arg(&csv)
+            .arg("--model")
+            .arg(&baseline),
+    ))
+    .expect("json");
+    let named = diagnosis["candidates"][0]["effect"]
+        .as_str()
+        .expect("an effect")
+        .to_owned();
+    assert_eq!(named, "deadzone");
+    let model = dir.join("model.toml");
+    run_silent(
+        hydractl()
+            .args(["model", "add", &named, "--data"])
+            .arg(&csv)
+            .arg("--model")
+            .arg(&baseline)
+            .arg("--out")
+            .arg(&model),
+    );
+    let tuned = dir.join("tuned.toml");
+    let report: serde_json::Value = serde_json::from_str(&run_silent(
+        hydractl()
+            .args(["model", "compensate", "--json", "--model"])
+            .arg(&model)
+            .arg("--out")
+            .arg(&tuned),
+    ))
+    .expect("json");
+    let keys: Vec<&str> = report["changes"]
+        .as_array()
+        .expect("changes")
+        .iter()
+        .filter_map(|c| c["key"].as_str())
+        .collect();
+    assert!(keys.contains(&"control.valve.deadzone_width"), "{report}");
+    let after = tracking_rms(&dir, Some(&tuned), Some(effect), None);
+    assert!(after <= 0.7 * before, "tracking RMS {before} → {after}: not 30 % lower");
+
+    // With nothing learned nothing changes, and the run is as good.
+    let clean = dir.join("clean.toml");
+    std::fs::write(&clean, "[plant]\n").expect("write");
+    let untouched = dir.join("untouched.toml");
+    run_silent(
+        hydractl()
+            .args(["model", "compensate", "--model"])
+            .arg(&clean)
+            .arg("--out")
+            .arg(&untouched),
+    );
+    let base = tracking_rms(&dir, None, None, None);
+    let same = tracking_rms(&dir, Some(&untouched), None, None);
+    assert!(same <= 1.02 * base, "tracking RMS {base} → {same} with no effect");
+    std::fs::remove_dir_all(dir).ok();
 }
