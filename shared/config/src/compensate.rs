@@ -123,16 +123,22 @@ pub fn compensate(base: &Config, effects: &Effects) -> Compensation {
             set(&mut changes, key, slot, to, EffectKind::Saturation, reason);
         }
     }
-    let unanswered: [(bool, EffectKind, &str); 8] = [
+    if let Some(asymmetry) = effects.asymmetric_gain {
+        set(
+            &mut changes,
+            "control.valve.negative_gain_ratio",
+            &mut control.valve.negative_gain_ratio,
+            asymmetry.ratio.clamp(0.1, 10.0),
+            EffectKind::AsymmetricGain,
+            "the shaper divides negative commands by the fitted ratio, so that both directions move the load \
+             alike for the same command",
+        );
+    }
+    let unanswered: [(bool, EffectKind, &str); 7] = [
         (
             effects.time_delay.is_some(),
             EffectKind::TimeDelay,
             "no controller takes a delay into account yet (a Smith predictor, or gains tuned for it)",
-        ),
-        (
-            effects.asymmetric_gain.is_some(),
-            EffectKind::AsymmetricGain,
-            "the valve shaper has no inverse of one direction's gain yet",
         ),
         (
             effects.coulomb_friction.is_some(),

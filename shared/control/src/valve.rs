@@ -11,6 +11,10 @@ pub struct ValveShaperParams {
     /// jump, so that a command dithering around zero does not chatter the
     /// spool across the overlap.
     pub deadzone_smoothing: f64,
+    /// Flow gain of a negative opening relative to a positive one, as the
+    /// `asymmetric_gain` effect's `ratio`: negative commands are divided by
+    /// it, so that both directions move the load alike (1: symmetric).
+    pub negative_gain_ratio: f64,
     /// Command limit, command units.
     pub limit: f64,
     /// Largest change per second, command units/s.
@@ -22,17 +26,21 @@ impl Default for ValveShaperParams {
         Self {
             deadzone_width: 0.0,
             deadzone_smoothing: 0.01,
+            negative_gain_ratio: 1.0,
             limit: 1.0,
             rate_limit_per_s: 100.0,
         }
     }
 }
 
-/// Valve command shaping: dead-zone inverse, then saturation, then rate limit.
+/// Valve command shaping: the asymmetric gain's inverse, the dead-zone
+/// inverse, then saturation, then rate limit.
 #[derive(Debug, Clone)]
 pub struct ValveShaper {
     params: ValveShaperParams,
     max_step: f64,
+    /// 1 / `negative_gain_ratio`, so that a period multiplies.
+    negative_scale: f64,
     last: f64,
 }
 
@@ -47,10 +55,17 @@ impl ValveShaper {
             "must be in (0, 1]",
         )?;
         require_positive("rate_limit_per_s", params.rate_limit_per_s)?;
+        require(
+            "negative_gain_ratio",
+            params.negative_gain_ratio,
+            (0.1..=10.0).contains(&params.negative_gain_ratio),
+            "must be in [0.1, 10]",
+        )?;
         require_positive("sample time", ts)?;
         Ok(Self {
             params,
             max_step: params.rate_limit_per_s * ts,
+            negative_scale: 1.0 / params.negative_gain_ratio,
             last: 0.0,
         })
     }
@@ -82,10 +97,20 @@ impl ValveShaper {
         }
     }
 
+    /// The asymmetric gain's inverse alone: the opening that gives a
+    /// negative command's flow.
+    pub fn invert_asymmetry(&self, command: f64) -> f64 {
+        if command < 0.0 {
+            command * self.negative_scale
+        } else {
+            command
+        }
+    }
+
     /// One period: the command to send for the controller's `command`.
     pub fn update(&mut self, command: f64) -> f64 {
         let limited = self
-            .invert_deadzone(command)
+            .invert_deadzone(self.invert_asymmetry(command))
             .clamp(-self.params.limit, self.params.limit);
         let step = (limited - self.last).clamp(-self.max_step, self.max_step);
         self.last += step;
@@ -113,6 +138,27 @@ mod tests {
         let below = v.invert_deadzone(0.01 - 1e-12);
         let above = v.invert_deadzone(0.01 + 1e-12);
         assert!((below - above).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_weaker_negative_direction_is_opened_wider_within_the_limit() {
+        let mut v = ValveShaper::new(
+            ValveShaperParams {
+                negative_gain_ratio: 0.5,
+                rate_limit_per_s: 1e6,
+                ..ValveShaperParams::default()
+            },
+            0.001,
+        )
+        .expect("valid");
+        assert_eq!(v.invert_asymmetry(0.3), 0.3);
+        assert!((v.invert_asymmetry(-0.3) + 0.6).abs() < 1e-15);
+        assert_eq!(v.update(-0.8), -1.0, "still within the limit");
+        let bad = ValveShaperParams {
+            negative_gain_ratio: 0.0,
+            ..ValveShaperParams::default()
+        };
+        assert!(ValveShaper::new(bad, 0.001).is_err());
     }
 
     #[test]
