@@ -106,21 +106,40 @@ pub fn compensate(base: &Config, effects: &Effects) -> Compensation {
         );
         // The limits of the loops whose output is a valve command.
         let position = &mut control.position_only;
-        for (key, slot) in [
-            ("control.position_only.pid.output_min", &mut position.pid.output_min),
-            ("control.position_only.mfc.output_min", &mut position.mfc.output_min),
-            ("control.torque.pid.output_min", &mut control.torque.pid.output_min),
+        for (name, min, max) in [
+            (
+                "control.position_only.pid",
+                &mut position.pid.output_min,
+                &mut position.pid.output_max,
+            ),
+            (
+                "control.position_only.mfc",
+                &mut position.mfc.output_min,
+                &mut position.mfc.output_max,
+            ),
+            (
+                "control.torque.pid",
+                &mut control.torque.pid.output_min,
+                &mut control.torque.pid.output_max,
+            ),
         ] {
-            let to = slot.max(-limit);
-            set(&mut changes, key, slot, to, EffectKind::Saturation, reason);
-        }
-        for (key, slot) in [
-            ("control.position_only.pid.output_max", &mut position.pid.output_max),
-            ("control.position_only.mfc.output_max", &mut position.mfc.output_max),
-            ("control.torque.pid.output_max", &mut control.torque.pid.output_max),
-        ] {
-            let to = slot.min(limit);
-            set(&mut changes, key, slot, to, EffectKind::Saturation, reason);
+            let (low, high) = (min.max(-limit), max.min(limit));
+            set(
+                &mut changes,
+                &format!("{name}.output_min"),
+                min,
+                low,
+                EffectKind::Saturation,
+                reason,
+            );
+            set(
+                &mut changes,
+                &format!("{name}.output_max"),
+                max,
+                high,
+                EffectKind::Saturation,
+                reason,
+            );
         }
     }
     if let Some(asymmetry) = effects.asymmetric_gain {

@@ -59,6 +59,28 @@ pub struct ModelRow {
     pub valve_requested: f64,
 }
 
+impl ModelRow {
+    /// The row's values in the order of [`MODEL_COLUMNS`] then [`SIGNAL_COLUMNS`].
+    pub fn values(&self) -> [f64; MODEL_COLUMNS.len() + SIGNAL_COLUMNS.len()] {
+        [
+            self.t,
+            self.u,
+            self.p_a,
+            self.p_b,
+            self.theta,
+            self.theta_ref,
+            self.omega_est,
+            self.torque,
+            self.blended_velocity,
+            self.friction_comp,
+            self.position_output,
+            self.torque_ref,
+            self.torque_command,
+            self.valve_requested,
+        ]
+    }
+}
+
 /// What [`export_rows`] made of a recording.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Export {
@@ -143,52 +165,48 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
             topic: service::VALVE.to_owned(),
         })?;
     let mut rows = Vec::with_capacity(plant.len());
-    let (mut u, mut theta_ref, mut held) = (0.0, 0.0, 0);
-    // The other stages' signals hold their last value where a reading was
-    // skipped, as the command does; NaN before a stage's first sample.
-    let mut other = [f64::NAN; SIGNAL_COLUMNS.len()];
+    let mut held = 0;
+    // Each row starts from the last: a signal holds its value where a stage
+    // skipped a reading, as the valve holds its command; the other stages'
+    // signals are NaN before their first sample.
+    let mut row = ModelRow {
+        t: 0.0,
+        u: 0.0,
+        p_a: f64::NAN,
+        p_b: f64::NAN,
+        theta: f64::NAN,
+        theta_ref: 0.0,
+        omega_est: f64::NAN,
+        torque: f64::NAN,
+        blended_velocity: f64::NAN,
+        friction_comp: f64::NAN,
+        position_output: f64::NAN,
+        torque_ref: f64::NAN,
+        torque_command: f64::NAN,
+        valve_requested: f64::NAN,
+    };
     for (seq, r) in plant.range(start..) {
-        match (valve.get(seq), position.get(seq)) {
-            (Some(v), Some(p)) => (u, theta_ref) = (v.command, p.reference_angle),
-            (v, p) => {
-                held += 1;
-                u = v.map_or(u, |v| v.command);
-                theta_ref = p.map_or(theta_ref, |p| p.reference_angle);
-            }
+        let (v, p) = (valve.get(seq), position.get(seq));
+        if v.is_none() || p.is_none() {
+            held += 1;
+        }
+        (row.t, row.p_a, row.p_b, row.theta) = ((seq - start) as f64 * period_s, r.p_a * 1e-5, r.p_b * 1e-5, r.angle);
+        if let Some(v) = v {
+            (row.u, row.valve_requested) = (v.command, v.requested);
+        }
+        if let Some(p) = p {
+            (row.theta_ref, row.position_output) = (p.reference_angle, p.output);
         }
         if let Some(s) = sensor.get(seq) {
-            (other[0], other[1]) = (s.velocity, s.torque);
+            (row.omega_est, row.torque) = (s.velocity, s.torque);
         }
         if let Some(f) = friction.get(seq) {
-            (other[2], other[3]) = (f.blended_velocity, f.compensation);
-        }
-        if let Some(p) = position.get(seq) {
-            other[4] = p.output;
+            (row.blended_velocity, row.friction_comp) = (f.blended_velocity, f.compensation);
         }
         if let Some(t) = torque.get(seq) {
-            (other[5], other[6]) = (t.torque_reference, t.command);
+            (row.torque_ref, row.torque_command) = (t.torque_reference, t.command);
         }
-        if let Some(v) = valve.get(seq) {
-            other[7] = v.requested;
-        }
-        let [omega_est, torque, blended_velocity, friction_comp, position_output, torque_ref, torque_command, valve_requested] =
-            other;
-        rows.push(ModelRow {
-            t: (seq - start) as f64 * period_s,
-            u,
-            p_a: r.p_a * 1e-5,
-            p_b: r.p_b * 1e-5,
-            theta: r.angle,
-            theta_ref,
-            omega_est,
-            torque,
-            blended_velocity,
-            friction_comp,
-            position_output,
-            torque_ref,
-            torque_command,
-            valve_requested,
-        });
+        rows.push(row);
     }
     Ok(Export { rows, held, read })
 }

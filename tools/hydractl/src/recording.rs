@@ -311,23 +311,13 @@ fn exported(path: &Path) -> Result<hydractl_recording::Export> {
 pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
         let rows = exported(path)?.rows;
-        let column = |f: fn(&hydractl_recording::ModelRow) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
-        let mut columns = vec![
-            ("t", column(|r| r.t)),
-            ("u", column(|r| r.u)),
-            ("p_a", column(|r| r.p_a)),
-            ("p_b", column(|r| r.p_b)),
-            ("theta", column(|r| r.theta)),
-            ("theta_ref", column(|r| r.theta_ref)),
-            ("omega_est", column(|r| r.omega_est)),
-            ("torque", column(|r| r.torque)),
-            ("blended_velocity", column(|r| r.blended_velocity)),
-            ("friction_comp", column(|r| r.friction_comp)),
-            ("position_output", column(|r| r.position_output)),
-            ("torque_ref", column(|r| r.torque_ref)),
-            ("torque_command", column(|r| r.torque_command)),
-            ("valve_requested", column(|r| r.valve_requested)),
-        ];
+        let values: Vec<_> = rows.iter().map(hydractl_recording::ModelRow::values).collect();
+        let mut columns: Vec<(&str, Vec<f64>)> = MODEL_COLUMNS
+            .iter()
+            .chain(SIGNAL_COLUMNS.iter())
+            .enumerate()
+            .map(|(i, name)| (*name, values.iter().map(|v| v[i]).collect()))
+            .collect();
         // A stage the run did not have is not a column of its data.
         columns.retain(|(_, c)| c.iter().any(|v| v.is_finite()));
         let data = Dataset::from_columns(&path.display().to_string(), columns);
