@@ -26,10 +26,14 @@ const PROCESSES: [&str; 11] = [
 /// `cargo deb --no-build` from the binaries the tests were built with.
 /// `None` when cargo-deb is missing and not required (`HYDRACTL_REQUIRE_DEB=1`).
 fn package(dir: &Path) -> Option<PathBuf> {
-    if let Ok(deb) = std::env::var("HYDRACTL_DEB") {
-        return Some(PathBuf::from(deb));
-    }
     let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    if let Ok(deb) = std::env::var("HYDRACTL_DEB") {
+        // A relative path is the workspace's, where `.ci/run` runs;
+        // cargo runs this test from `tests/`.
+        let deb = workspace.join(deb);
+        assert!(deb.is_file(), "HYDRACTL_DEB names no file: {}", deb.display());
+        return Some(deb);
+    }
     let out = Command::new("cargo")
         .current_dir(&workspace)
         .args(["deb", "-p", "hydractl", "--no-build", "--strip", "-o"])
@@ -119,7 +123,11 @@ fn the_package_holds_the_stack_its_configs_and_a_unit_that_verifies() {
         .arg(&root)
         .output()
         .expect("dpkg-deb -x");
-    assert!(out.status.success());
+    assert!(
+        out.status.success(),
+        "dpkg-deb -x: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let unit_path = root.join("usr/lib/systemd/system/hydractl.service");
     let unit = std::fs::read_to_string(&unit_path).expect("unit");
     for line in [
@@ -180,7 +188,11 @@ fn the_installed_layout_runs_the_stack_with_its_own_binaries_and_configs() {
         .arg(&root)
         .output()
         .expect("dpkg-deb -x");
-    assert!(out.status.success());
+    assert!(
+        out.status.success(),
+        "dpkg-deb -x: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let scope = unique_scope("installed");
     let installed = root.join("usr/bin/hydractl");
     // It finds the processes in ../lib/hydractl, nowhere else.
