@@ -16,6 +16,7 @@ pub mod handover;
 pub mod live_plant;
 pub mod logging;
 pub mod recording;
+pub mod shadow;
 pub mod supervisor;
 
 #[derive(Parser, Debug)]
@@ -241,7 +242,7 @@ pub fn start(name: &str) -> Result<Started> {
     let filter = logging::filter(None, &config.log).map_err(anyhow::Error::msg)?;
     let log_span = logging::init(name, filter, &config.log);
     // The loop's CPU is for the loop: watching and writing files go elsewhere.
-    let placed = if name == "supervisor" || name == "recorder" {
+    let placed = if matches!(name, "supervisor" | "recorder" | "shadow") {
         placement::keep_off_loop_cpu(config.timing.loop_cpu)
     } else {
         placement::pin_to_loop_cpu(config.timing.loop_cpu)

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use hydractl_bus::{clock, Inlet, Outlet, PublisherWatch, Reader};
 use hydractl_config::StallPolicy;
-use hydractl_plant::{Plant, SensorModel};
+use hydractl_plant::{Drift, Plant, SensorModel};
 use hydractl_samples::{
     fault, service, source, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
 };
@@ -65,7 +65,13 @@ pub fn run(kind: PlantKind) -> Result<()> {
         Some(profile) => Body::Can(CanSensors::open(bus, profile)?),
         None => {
             let (plant, sensors) = build_plant(&config, &[])?;
-            Body::Simulated { plant, sensors }
+            let drift = match (kind, started.config.machine.as_ref().and_then(|m| m.drift.as_ref())) {
+                (PlantKind::Machine, Some(spec)) => {
+                    Some(Drift::new(plant.effects(), spec).context("machine: [machine.drift]")?)
+                }
+                _ => None,
+            };
+            Body::Simulated { plant, sensors, drift }
         }
     };
     let readings: Outlet<PlantReading> = Outlet::open(bus, service::PLANT_READING)?;
@@ -83,7 +89,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
     if let Some(resume) = started.args.resume {
         seq = resume.seq + 1;
     }
-    if let (Some(resume), Body::Simulated { plant, sensors }) = (started.args.resume, &mut body) {
+    if let (Some(resume), Body::Simulated { plant, sensors, .. }) = (started.args.resume, &mut body) {
         let mut state = plant.state();
         state.angle = resume.angle;
         state.load_angle = resume.angle;
@@ -173,7 +179,7 @@ pub fn run(kind: PlantKind) -> Result<()> {
         match change {
             Some(SeatChange::Take { at_seq }) => {
                 tracing::info!("drives the loop from reading {at_seq}");
-                if let (Body::Simulated { plant, sensors }, PlantKind::Simulation, Some(r)) =
+                if let (Body::Simulated { plant, sensors, .. }, PlantKind::Simulation, Some(r)) =
                     (&mut body, kind, last_measured)
                 {
                     // From the last measured state, the valve neutral.
@@ -264,7 +270,12 @@ pub fn run(kind: PlantKind) -> Result<()> {
 // One for the whole process, made at start: its size is no cost.
 #[allow(clippy::large_enum_variant)]
 enum Body {
-    Simulated { plant: Plant, sensors: SensorModel },
+    Simulated {
+        plant: Plant,
+        sensors: SensorModel,
+        /// The machine stand-in's effect that changes as it runs.
+        drift: Option<Drift>,
+    },
     Can(CanSensors),
 }
 
@@ -273,7 +284,7 @@ impl Body {
     /// (awaited up to their deadline).
     fn read(&mut self, seq: u64, late_commands: u64, source: u32, amplifier_neutral_for: u32) -> Result<PlantReading> {
         match self {
-            Self::Simulated { plant, sensors } => Ok(read_sensors(
+            Self::Simulated { plant, sensors, .. } => Ok(read_sensors(
                 plant,
                 sensors,
                 seq,
@@ -303,7 +314,10 @@ impl Body {
     /// integrates; the machine moves by itself, its valve driven by the
     /// valve process.
     fn advance(&mut self, command: f64, substeps: usize) {
-        if let Self::Simulated { plant, .. } = self {
+        if let Self::Simulated { plant, drift, .. } = self {
+            if let Some(drift) = drift {
+                plant.drift_to(drift.effects_at(plant.time()));
+            }
             plant.advance(command, substeps);
         }
     }

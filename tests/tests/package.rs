@@ -8,19 +8,7 @@ use std::process::Command;
 
 use hydractl_system_tests::*;
 
-const PROCESSES: [&str; 11] = [
-    "supervisor",
-    "plant",
-    "machine",
-    "sensor",
-    "friction",
-    "position",
-    "torque",
-    "valve",
-    "recorder",
-    "canbus",
-    "ecus",
-];
+use hydractl_bus::PROCESS_BINARIES as PROCESSES;
 
 /// The package: `HYDRACTL_DEB` (`.ci/run` builds it), else built here by
 /// `cargo deb --no-build` from the binaries the tests were built with.

@@ -54,6 +54,9 @@ pub struct Supervisor {
     /// plant in charge.
     children: Vec<Supervised>,
     recorder: Option<RecorderChild>,
+    /// The shadow model, when the config names one: off the loop, never
+    /// on its path; restarted as any process, never waited for.
+    shadow: Option<Supervised>,
     swaps: Swaps,
     seat: Seat,
     /// Opened once the children are started, as the supervisor always has:
@@ -116,6 +119,11 @@ impl Supervisor {
             out: out.clone(),
             ring: args.record.ring.clone(),
         });
+        let shadow = config
+            .shadow
+            .model
+            .is_some()
+            .then(|| Supervised::new("shadow", &dir, config_path.clone()));
         let count = children.len();
         Ok(Self {
             scope: bus.scope().clone(),
@@ -123,6 +131,7 @@ impl Supervisor {
             limit_cycle: config.control.valve_guard.limit_cycle(),
             children,
             recorder,
+            shadow,
             swaps: Swaps::open(
                 bus,
                 dir,
@@ -170,6 +179,9 @@ impl Supervisor {
         if let Some(spare) = &mut self.seat.spare {
             spare.spawn(&self.scope, &["--standby".to_owned()])?;
         }
+        if let Some(shadow) = &mut self.shadow {
+            shadow.spawn(&self.scope, &[])?;
+        }
         let now = clock::now_ns();
         self.last_answer_ns.iter_mut().for_each(|t| *t = now);
         Ok(())
@@ -185,6 +197,7 @@ impl Supervisor {
             limit_cycle: _,
             children,
             recorder,
+            shadow,
             swaps,
             seat,
             ports,
@@ -487,6 +500,15 @@ impl Supervisor {
                 }
             }
         }
+        if let Some(shadow) = shadow.as_mut() {
+            if shadow.reap() {
+                cleanup_needed = true;
+                if !shadow.after_stop(now, policy) {
+                    let why = shadow.given_up.clone().unwrap_or_default();
+                    tracing::error!("the shadow model is left down: {why}");
+                }
+            }
+        }
         if cleanup_needed {
             scope.remove_dead_nodes()?;
         }
@@ -499,6 +521,12 @@ impl Supervisor {
         if let Some(r) = recorder.as_mut() {
             if r.child.restart_due(now) {
                 r.restart(scope)?;
+            }
+        }
+        if let Some(shadow) = shadow.as_mut() {
+            if shadow.restart_due(now) {
+                shadow.spawn(scope, &[])?;
+                shadow.restarts += 1;
             }
         }
         for child in children.iter_mut() {
@@ -540,6 +568,7 @@ impl Supervisor {
             .filter_map(Supervised::pid)
             .collect();
         ours.extend(recorder.as_ref().and_then(|r| r.child.pid()));
+        ours.extend(shadow.as_ref().and_then(Supervised::pid));
         ours.extend(swaps.standby_pid());
         ours.push(own_pid);
         for (pid, name) in strangers.look(bus, now, &ours) {
@@ -579,6 +608,7 @@ impl Supervisor {
             policy,
             mut children,
             mut recorder,
+            mut shadow,
             swaps,
             mut seat,
             ports,
@@ -597,6 +627,11 @@ impl Supervisor {
         }
         if let Some(spare) = &mut seat.spare {
             spare.finish_stop(deadline);
+        }
+        // Before the recorder, which records its last window.
+        if let Some(shadow) = &mut shadow {
+            shadow.request_stop();
+            shadow.finish_stop(Instant::now() + Duration::from_secs(2));
         }
         if let Some(r) = &mut recorder {
             r.child.request_stop();

@@ -30,6 +30,13 @@ pub const INSTALLED_PROCESS_DIR: &str = "../lib/hydractl";
 /// The binary every process folder holds; the others sit beside it.
 const SUPERVISOR: &str = "supervisor";
 
+/// Every process binary a run may start, the supervisor first: what the
+/// package installs and `doctor` looks for.
+pub const PROCESS_BINARIES: [&str; 12] = [
+    SUPERVISOR, "plant", "machine", "sensor", "friction", "position", "torque", "valve", "recorder", "shadow",
+    "canbus", "ecus",
+];
+
 /// The folder of the process binaries (the supervisor, the stages):
 /// [`PROCESS_DIR_ENV`] when set, else beside the running executable (a
 /// build tree's `target/release`, or the supervisor starting its

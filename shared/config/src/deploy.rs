@@ -43,3 +43,30 @@ pub struct RecordingConfig {
     /// run --keep-mb` comes before it. None: keep everything.
     pub keep_mb: Option<f64>,
 }
+
+/// `[shadow]`: a fitted model run beside the machine, watching it drift.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ShadowConfig {
+    /// The model file (`hydractl model fit`/`add`), relative to this
+    /// config's folder. None: no shadow process.
+    pub model: Option<std::path::PathBuf>,
+    /// The sliding window the model is compared over, s.
+    pub window_s: f64,
+    /// How often it is compared, s (a multiple of the 0.5 s segment).
+    pub every_s: f64,
+    /// After a drift alarm, seconds of data the diagnosis of what changed
+    /// is run on, all from after the alarm.
+    pub diagnose_s: f64,
+}
+
+impl Default for ShadowConfig {
+    fn default() -> Self {
+        Self {
+            model: None,
+            window_s: 5.0,
+            every_s: 1.0,
+            diagnose_s: 15.0,
+        }
+    }
+}

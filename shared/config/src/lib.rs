@@ -22,7 +22,7 @@ pub use control::{
     ControlConfig, OuterLoopConfig, OuterPart, PositionVariant, Structure, TorqueLoopConfig, TorqueVariant,
     ValveGuardParams, MAX_GUARD_PERIODS,
 };
-pub use deploy::{LogConfig, LogOutput, RecordingConfig};
+pub use deploy::{LogConfig, LogOutput, RecordingConfig, ShadowConfig};
 pub use supervisor::{OnLimitCycle, RestartPolicy, RestartRule, SupervisorConfig, SUPERVISED_PROCESSES};
 pub use timing::{StallPolicy, Timing};
 
@@ -118,6 +118,8 @@ pub struct Config {
     pub log: LogConfig,
     #[serde(default)]
     pub recording: RecordingConfig,
+    #[serde(default)]
+    pub shadow: ShadowConfig,
 }
 
 /// The machine stand-in: the simulated plant's parameters, overridden.
@@ -137,6 +139,9 @@ pub struct MachineConfig {
     /// PDOs) this long after the ECUs start, as a cut cable would: for
     /// trying the master's heartbeat watch.
     pub silent_node: Option<SilentNode>,
+    /// One of its effects changes while it runs, as a wearing valve does:
+    /// for trying the shadow model's drift detection.
+    pub drift: Option<hydractl_plant::DriftSpec>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -159,7 +164,7 @@ impl Config {
             source,
         })?;
         if !text.lines().any(|l| l.trim_start().starts_with("base")) {
-            return Self::parse(&text, path);
+            return Ok(Self::parse(&text, path)?.resolved_from(path));
         }
         let table = Self::load_table(path, &text, 0)?;
         let config = Config::deserialize(toml::Value::Table(table)).map_err(|e| ConfigError::Parse {
@@ -167,7 +172,15 @@ impl Config {
             message: e.to_string(),
         })?;
         config.validate(path)?;
-        Ok(config)
+        Ok(config.resolved_from(path))
+    }
+
+    /// Paths in the file are the file's: relative to its folder.
+    fn resolved_from(mut self, path: &Path) -> Self {
+        if let Some(model) = self.shadow.model.as_mut().filter(|m| m.is_relative()) {
+            *model = path.parent().unwrap_or(Path::new(".")).join(&*model);
+        }
+        self
     }
 
     fn load_table(path: &Path, text: &str, depth: usize) -> Result<toml::Table, ConfigError> {
@@ -299,6 +312,32 @@ mod tests {
             err.contains("missing.toml") && err.contains("`base") && err.contains("bad.toml"),
             "names the key, the file that holds it and the file it could not read: {err}"
         );
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    #[test]
+    fn a_drifting_machine_and_its_shadow_load_and_their_mistakes_are_named() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/machine-drift.toml");
+        let config = Config::load(&path).expect("config/machine-drift.toml");
+        let model = config.shadow.model.as_deref().expect("a shadow model");
+        assert!(model.is_file(), "resolved beside the config: {}", model.display());
+        assert_eq!(config.machine.and_then(|m| m.drift).map(|d| d.to), Some(0.06));
+
+        let dir = std::env::temp_dir().join(format!("hydractl-shadow-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let bad = dir.join("bad.toml");
+        let err = |text: &str| {
+            std::fs::write(&bad, format!("base = {:?}\n{text}", path.display().to_string())).expect("write");
+            Config::load(&bad).expect_err(text).to_string()
+        };
+        let said = err("[shadow]\nwindow_s = 2.0\n");
+        assert!(said.contains("[shadow]") && said.contains("4 s"), "{said}");
+        let said = err("[shadow]\nevery_s = 0.7\n");
+        assert!(said.contains("every_s") && said.contains("0.5 s"), "{said}");
+        let said = err("[machine.drift]\nkey = 'widht'\n");
+        assert!(said.contains("machine.drift") && said.contains("widht"), "{said}");
+        let said = err("[machine.drift]\neffect = 'time_delay'\nkey = 'delay_s'\n");
+        assert!(said.contains("machine.drift") && said.contains("structure"), "{said}");
         std::fs::remove_dir_all(dir).ok();
     }
 

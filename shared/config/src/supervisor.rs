@@ -79,8 +79,8 @@ pub enum OnLimitCycle {
 }
 
 /// The processes a supervisor's restart rules may name.
-pub const SUPERVISED_PROCESSES: [&str; 8] = [
-    "plant", "machine", "sensor", "friction", "position", "torque", "valve", "recorder",
+pub const SUPERVISED_PROCESSES: [&str; 9] = [
+    "plant", "machine", "sensor", "friction", "position", "torque", "valve", "recorder", "shadow",
 ];
 
 impl SupervisorConfig {

@@ -35,6 +35,41 @@ impl Config {
             machine.plant.validate().map_err(plant("machine.plant"))?;
             machine.effects.build().map_err(plant("machine.effects"))?;
         }
+        if let Some(drift) = self.machine.as_ref().and_then(|m| m.drift.as_ref()) {
+            let effects = self
+                .machine_plant()?
+                .map(|m| m.effects.build())
+                .transpose()
+                .map_err(plant("machine.effects"))?
+                .unwrap_or_default();
+            hydractl_plant::Drift::new(&effects, drift).map_err(plant("machine.drift"))?;
+        }
+        let shadow = &self.shadow;
+        let segments = |s: f64| s / 0.5;
+        for (key, value) in [
+            ("window_s", shadow.window_s),
+            ("every_s", shadow.every_s),
+            ("diagnose_s", shadow.diagnose_s),
+        ] {
+            if !(value.is_finite() && value >= 0.5 && (segments(value) - segments(value).round()).abs() < 1e-9) {
+                return Err(ConfigError::Parse {
+                    path: path.to_owned(),
+                    message: format!(
+                        "[shadow] {key} must be a whole number of 0.5 s segments, at least one; got {value}"
+                    ),
+                });
+            }
+        }
+        // The model tools compare and fit on 4 s of data at least.
+        if shadow.every_s > shadow.window_s || shadow.window_s < 4.0 || shadow.diagnose_s < 4.0 {
+            return Err(ConfigError::Parse {
+                path: path.to_owned(),
+                message: format!(
+                    "[shadow] every_s ({}) must be within window_s ({}), and window_s and diagnose_s ({}) at least 4 s",
+                    shadow.every_s, shadow.window_s, shadow.diagnose_s
+                ),
+            });
+        }
         if let Some(after) = self.machine.as_ref().and_then(|m| m.bus_lost_after_s) {
             if !(after.is_finite() && after > 0.0) {
                 return Err(ConfigError::Parse {

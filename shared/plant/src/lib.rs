@@ -1,6 +1,7 @@
 //! The hydraulic rotary actuator: the papers' physics, the effect catalog,
 //! sensors, fixed-step integration and linearization. No IPC here.
 
+mod drift;
 pub mod effects;
 pub mod hydraulics;
 mod linearize;
@@ -9,6 +10,7 @@ mod params;
 mod plant;
 mod sensor;
 
+pub use drift::{Drift, DriftSpec};
 pub use effects::{Effect, EffectKind, Effects, EffectsConfig, ParamSpec};
 pub use linearize::{baseline_linear_model, LINEAR_OUTPUTS, LINEAR_STATES, TORQUE_OUTPUT};
 pub use params::{PlantParams, SensorParams};

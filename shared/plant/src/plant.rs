@@ -186,6 +186,13 @@ impl Plant {
         &self.effects
     }
 
+    /// The machine changes while it runs ([`crate::Drift`]): its effects'
+    /// parameters, never its structure (the delay line stays as made).
+    pub fn drift_to(&mut self, effects: &Effects) {
+        debug_assert_eq!(effects.time_delay, self.effects.time_delay);
+        self.effects = *effects;
+    }
+
     pub fn integration_step(&self) -> f64 {
         self.step
     }

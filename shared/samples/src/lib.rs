@@ -45,6 +45,10 @@ pub mod service {
     /// The machine's readings while the simulated plant drives the loop:
     /// it is alive, and the loop can go back to it.
     pub const PLANT_STANDBY: &str = "hydractl/plant/standby";
+    /// The shadow model's fit of the machine over its last window.
+    pub const SHADOW: &str = "hydractl/shadow";
+    /// The shadow's drift alarms, and what changed once it is named.
+    pub const SHADOW_DRIFT: &str = "hydractl/shadow/drift";
     /// The virtual CAN bus `interface`: frames handed to the wire.
     pub fn can_tx(interface: &str) -> String {
         format!("hydractl/can/{interface}/tx")
@@ -467,6 +471,81 @@ pub struct RecorderStatus {
     pub disk_full: u32,
     /// Oldest parts deleted to keep the recording within `keep_mb`.
     pub deleted_files: u32,
+}
+
+/// The shadow model's fit over its last window (`[shadow]`): each output's
+/// fit, each part's residual, the drift test's state. Off the loop: its
+/// reading is the window's last.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::ShadowSample")]
+pub struct ShadowSample {
+    /// Windows compared since the shadow started.
+    pub seq: u64,
+    pub sensor_seq: u64,
+    pub sensor_time_ns: u64,
+    pub stage_time_ns: u64,
+    pub window_s: f64,
+    /// 100 (1 − NRMSE) over the window, percent; NaN where not measured.
+    pub fit_theta: f64,
+    pub fit_p_a: f64,
+    pub fit_p_b: f64,
+    /// The residual RMS over the window: the hydraulic part's pressures
+    /// (Pa) and the angle (rad, the mechanical or whole part's).
+    pub residual_pressures: f64,
+    pub residual_angle: f64,
+    /// The new segments' log residual, standardized by the model's
+    /// validation spread (0: as validated).
+    pub normalized_pressures: f64,
+    pub normalized_angle: f64,
+    /// The drift test's sums and the threshold they alarm at.
+    pub cusum_pressures: f64,
+    pub cusum_angle: f64,
+    pub cusum_threshold: f64,
+    /// Residual NRMSE by regime, in `greybox::REGIMES`' order (NaN: no
+    /// sample in that regime).
+    pub regime_pressures: [f64; 8],
+    pub regime_angle: [f64; 8],
+    /// Drift alarms so far.
+    pub drift_alarms: u32,
+    /// 1 while the diagnosis of a drift runs.
+    pub diagnosing: u32,
+}
+
+/// A drift of the machine away from its model: published when the test
+/// alarms (`stage` [`drift::DETECTED`]), and again when the diagnosis has
+/// named the effect that changed, or could not.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::ModelDrift")]
+pub struct ModelDrift {
+    /// Drift messages since the shadow started.
+    pub seq: u64,
+    /// The reading at which the drift was detected.
+    pub sensor_seq: u64,
+    pub sensor_time_ns: u64,
+    pub stage_time_ns: u64,
+    /// The machine's time at detection, s from the shadow's first reading.
+    pub detected_after_s: f64,
+    /// How far the residual rose, in validation spreads, and as a ratio.
+    pub size: f64,
+    pub rms_ratio: f64,
+    /// The named effect's parameters in the catalog's order (NaN beyond).
+    pub params: [f64; 4],
+    /// [`drift`] `DETECTED`, `NAMED`, `UNNAMED`.
+    pub stage: u32,
+    pub reserved: u32,
+    /// NUL-padded ASCII: the part, the regime, the effect (once named).
+    pub part: [u8; 16],
+    pub regime: [u8; 24],
+    pub effect: [u8; 24],
+}
+
+/// The stages of a [`ModelDrift`].
+pub mod drift {
+    pub const DETECTED: u32 = 0;
+    pub const NAMED: u32 = 1;
+    pub const UNNAMED: u32 = 2;
 }
 
 /// The latency benchmark's sample: one pass through the five stages, with

@@ -14,8 +14,8 @@ use std::mem::size_of;
 use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{
-    BenchSample, FrictionSample, Handover, HandoverAck, PlantReading, PositionSample, RecorderStatus, SensorSample,
-    SupervisorEvent, SupervisorStatus, TorqueSample, ValveSample,
+    BenchSample, FrictionSample, Handover, HandoverAck, ModelDrift, PlantReading, PositionSample, RecorderStatus,
+    SensorSample, ShadowSample, SupervisorEvent, SupervisorStatus, TorqueSample, ValveSample,
 };
 
 #[cfg(not(target_endian = "little"))]
@@ -77,7 +77,7 @@ pub trait KindVisitor {
 }
 
 /// Every recordable kind.
-pub const KINDS: [&SampleKind; 12] = [
+pub const KINDS: [&SampleKind; 14] = [
     &PlantReading::KIND,
     &SensorSample::KIND,
     &FrictionSample::KIND,
@@ -90,11 +90,13 @@ pub const KINDS: [&SampleKind; 12] = [
     &HandoverAck::KIND,
     &SupervisorEvent::KIND,
     &BenchSample::KIND,
+    &ShadowSample::KIND,
+    &ModelDrift::KIND,
 ];
 
 /// The stack's own services and what they carry: the recorder subscribes
 /// to these before their publishers exist, discovery finds the rest.
-pub const STACK_SERVICES: [(&str, &SampleKind); 11] = [
+pub const STACK_SERVICES: [(&str, &SampleKind); 13] = [
     (crate::service::PLANT_READING, &PlantReading::KIND),
     (crate::service::SENSOR, &SensorSample::KIND),
     (crate::service::FRICTION, &FrictionSample::KIND),
@@ -106,6 +108,8 @@ pub const STACK_SERVICES: [(&str, &SampleKind); 11] = [
     (crate::service::SUPERVISOR_EVENTS, &SupervisorEvent::KIND),
     (crate::service::HANDOVER, &Handover::KIND),
     (crate::service::HANDOVER_ACK, &HandoverAck::KIND),
+    (crate::service::SHADOW, &ShadowSample::KIND),
+    (crate::service::SHADOW_DRIFT, &ModelDrift::KIND),
 ];
 
 /// Visits the type named `type_name`; `None` for a type we do not know.
@@ -126,6 +130,8 @@ pub fn visit_kind<V: KindVisitor>(type_name: &str, visitor: V) -> Option<V::Outp
         n if is::<HandoverAck>(n) => visitor.visit::<HandoverAck>(),
         n if is::<SupervisorEvent>(n) => visitor.visit::<SupervisorEvent>(),
         n if is::<BenchSample>(n) => visitor.visit::<BenchSample>(),
+        n if is::<ShadowSample>(n) => visitor.visit::<ShadowSample>(),
+        n if is::<ModelDrift>(n) => visitor.visit::<ModelDrift>(),
         _ => return None,
     })
 }
@@ -224,6 +230,19 @@ recordable!(
     "BenchSample",
     stamps_ns,
     "uint64 seq\nuint64[6] stamps_ns\nfloat64 angle\nfloat64 p_a\nfloat64 p_b\nfloat64 velocity\nfloat64 torque\nfloat64 friction\nfloat64 reference_velocity\nfloat64 output\nfloat64 command\n"
+);
+recordable!(
+    ShadowSample,
+    "ShadowSample",
+    stage_time_ns,
+    "uint64 seq\nuint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 window_s\nfloat64 fit_theta\nfloat64 fit_p_a\nfloat64 fit_p_b\nfloat64 residual_pressures\nfloat64 residual_angle\nfloat64 normalized_pressures\nfloat64 normalized_angle\nfloat64 cusum_pressures\nfloat64 cusum_angle\nfloat64 cusum_threshold\nfloat64[8] regime_pressures\nfloat64[8] regime_angle\nuint32 drift_alarms\nuint32 diagnosing\n"
+);
+recordable!(
+    ModelDrift,
+    "ModelDrift",
+    stage_time_ns,
+    "uint64 seq\nuint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 detected_after_s\nfloat64 size\nfloat64 rms_ratio\nfloat64[4] params\nuint32 stage\nuint32 reserved\nstring part\nstring regime\nstring effect\n",
+    &[("part", 16), ("regime", 24), ("effect", 24)]
 );
 
 #[cfg(test)]

@@ -675,19 +675,6 @@ fn recording(config: &Config) -> Check {
 /// The process binaries the stack starts, where `hydractl run` finds them.
 fn binaries() -> Check {
     const NAME: &str = "binaries";
-    const PROCESSES: [&str; 11] = [
-        "supervisor",
-        "plant",
-        "machine",
-        "sensor",
-        "friction",
-        "position",
-        "torque",
-        "valve",
-        "recorder",
-        "canbus",
-        "ecus",
-    ];
     let dir = match hydractl_bus::process_dir() {
         Ok(dir) => dir,
         Err(e) => {
@@ -698,7 +685,7 @@ fn binaries() -> Check {
             )
         }
     };
-    let missing: Vec<&str> = PROCESSES
+    let missing: Vec<&str> = hydractl_bus::PROCESS_BINARIES
         .iter()
         .filter(|name| nix::unistd::access(&dir.join(name), nix::unistd::AccessFlags::X_OK).is_err())
         .copied()

@@ -165,6 +165,18 @@ pub fn residuals(signals: &Signals, prediction: &Prediction, k: usize) -> [(&'st
     ]
 }
 
+/// The operating regimes a residual is broken down by, in order.
+pub const REGIMES: [&str; 8] = [
+    "at_rest",
+    "moving",
+    "small_command",
+    "large_command",
+    "velocity_reversal",
+    "angle_low_third",
+    "angle_middle_third",
+    "angle_high_third",
+];
+
 /// Which regimes sample `k` belongs to.
 pub fn regimes_of(signals: &Signals, k: usize, reversal: &[bool], thirds: (f64, f64)) -> Vec<&'static str> {
     let mut out = Vec::with_capacity(4);
@@ -239,17 +251,7 @@ fn regimes(signals: &Signals, prediction: &Prediction, validation: Range<usize>)
             }
         }
     }
-    let order = [
-        "at_rest",
-        "moving",
-        "small_command",
-        "large_command",
-        "velocity_reversal",
-        "angle_low_third",
-        "angle_middle_third",
-        "angle_high_third",
-    ];
-    order
+    REGIMES
         .iter()
         .filter_map(|regime| {
             let (count, squares) = sums.get(regime)?;

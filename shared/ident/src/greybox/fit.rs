@@ -672,10 +672,10 @@ pub fn fit_baseline(signals: &Signals, prior: &PlantParams, options: FitOptions)
     }
     let effects = model.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
-    let errors = validation_nrmse(&model.plant, &effects, signals, validation);
-    model
-        .history
-        .push(HistoryStep::of("baseline", &model.plant, &model.effects, errors));
+    let errors = validation_nrmse(&model.plant, &effects, signals, validation.clone());
+    let mut step = HistoryStep::of("baseline", &model.plant, &model.effects, errors);
+    step.validation_spread = super::validation_spread(&model.plant, &effects, signals, validation);
+    model.history.push(step);
     Ok(model)
 }
 
@@ -793,9 +793,10 @@ pub(crate) fn fit_effect(
     };
     let effects = out.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
-    let errors = validation_nrmse(&out.plant, &effects, signals, validation);
-    out.history
-        .push(HistoryStep::of(kind.name(), &out.plant, &out.effects, errors));
+    let errors = validation_nrmse(&out.plant, &effects, signals, validation.clone());
+    let mut step = HistoryStep::of(kind.name(), &out.plant, &out.effects, errors);
+    step.validation_spread = super::validation_spread(&out.plant, &effects, signals, validation);
+    out.history.push(step);
     Ok((out, fitted))
 }
 

@@ -21,11 +21,13 @@
 mod compare;
 mod diagnose;
 mod fit;
+mod shadow;
 mod signals;
 
-pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore};
+pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore, REGIMES};
 pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
+pub use shadow::{segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow};
 pub use signals::{Signals, COLUMNS, REQUIRED_COLUMNS};
 
 use std::collections::BTreeMap;
@@ -72,6 +74,8 @@ pub enum ModelError {
     NotJudged { effect: &'static str, reason: String },
     #[error("the fit failed: {0}")]
     Fit(String),
+    #[error("the model cannot shadow the machine: {reason}")]
+    Shadow { reason: String },
 }
 
 /// The two parts of the model, and the outputs they predict.
@@ -143,6 +147,10 @@ pub struct HistoryStep {
     pub plant: Option<PlantParams>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub effects: Option<EffectsConfig>,
+    /// Each part's segment residual on the validation data, for the
+    /// shadow's drift test (absent in older files).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub validation_spread: BTreeMap<String, SegmentSpread>,
 }
 
 impl HistoryStep {
@@ -158,6 +166,7 @@ impl HistoryStep {
             validation_nrmse,
             plant: Some(*plant),
             effects: Some(effects.clone()),
+            validation_spread: BTreeMap::new(),
         }
     }
 

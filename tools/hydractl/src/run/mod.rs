@@ -1,6 +1,7 @@
 //! `hydractl run`: starts the supervisor (which starts the loop), watches
 //! the loop's samples, shows a live status, and writes the run's summary.
 
+use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -108,8 +109,72 @@ struct RunSummary {
     /// The machine's CAN bus as a listener on it saw it.
     #[serde(skip_serializing_if = "Option::is_none")]
     can: Option<CanSummary>,
+    /// The shadow model's last window, when `[shadow] model` is set.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    shadow: Option<ShadowSummary>,
+    /// Each drift of the machine from its model the shadow detected, with
+    /// the effect its diagnosis named (none: not named, or not yet).
+    model_drift: Vec<DriftSummary>,
     #[serde(skip)]
     recorder: RecorderView,
+}
+
+#[derive(Serialize)]
+struct ShadowSummary {
+    model: String,
+    /// Windows compared.
+    windows: u64,
+    /// The last window's fit per output, percent (`theta`, `p_a`, `p_b`).
+    fit_percent: BTreeMap<&'static str, f64>,
+    /// The last window's residual RMS: pressures in Pa, angle in rad.
+    residual_pressures_pa: Option<f64>,
+    residual_angle_rad: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct DriftSummary {
+    part: String,
+    regime: String,
+    /// The machine's time at detection, s from the loop's first reading.
+    detected_after_s: f64,
+    /// How much the part's residual grew, as a ratio of RMS.
+    rms_ratio: f64,
+    /// The effect the diagnosis named, and its fitted parameters.
+    effect: Option<String>,
+    params: BTreeMap<String, f64>,
+    /// `named`, `not named` (no effect of the catalog explains it) or
+    /// `diagnosing` (the run ended first).
+    outcome: &'static str,
+}
+
+impl DriftSummary {
+    fn of(d: &hydractl_samples::ModelDrift) -> Self {
+        use hydractl_samples::drift;
+        let effect = Some(name_str(&d.effect).to_owned()).filter(|e| !e.is_empty());
+        let keys: Vec<&str> = effect
+            .as_deref()
+            .and_then(|e| hydractl_plant::EffectKind::from_name(e).ok())
+            .map(|k| k.params().iter().map(|p| p.key).collect())
+            .unwrap_or_default();
+        Self {
+            part: name_str(&d.part).to_owned(),
+            regime: name_str(&d.regime).to_owned(),
+            detected_after_s: d.detected_after_s,
+            rms_ratio: d.rms_ratio,
+            effect,
+            params: keys
+                .iter()
+                .zip(d.params)
+                .filter(|(_, v)| v.is_finite())
+                .map(|(k, v)| ((*k).to_owned(), v))
+                .collect(),
+            outcome: match d.stage {
+                drift::NAMED => "named",
+                drift::UNNAMED => "not named",
+                _ => "diagnosing",
+            },
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -305,6 +370,13 @@ pub fn run(mut args: RunArgs) -> Result<()> {
             bail!("keep_mb needs a split to delete: --split-size-mb or --split-duration-s (or [recording] split_size_mb, split_duration_s)");
         }
     }
+    // A model the shadow cannot use is said now, not by a process that
+    // crash-loops under the supervisor.
+    if let Some(path) = &config.shadow.model {
+        let model = hydractl_ident::greybox::Model::load(path).context("[shadow] model")?;
+        hydractl_ident::greybox::Shadow::new(model, Default::default())
+            .with_context(|| format!("[shadow] model {}", path.display()))?;
+    }
     if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
         tracing::warn!("{e}");
     }
@@ -476,6 +548,8 @@ struct Taps {
     friction: Reader<FrictionSample>,
     torque: Reader<hydractl_samples::TorqueSample>,
     events: Reader<SupervisorEvent>,
+    shadow: Reader<hydractl_samples::ShadowSample>,
+    drift: Reader<hydractl_samples::ModelDrift>,
 }
 
 impl Taps {
@@ -490,9 +564,19 @@ impl Taps {
             friction: Reader::open(&bus, service::FRICTION, 256)?,
             torque: Reader::open(&bus, service::TORQUE, 256)?,
             events: Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?,
+            shadow: Reader::open(&bus, service::SHADOW, 16)?,
+            drift: Reader::open(&bus, service::SHADOW_DRIFT, 16)?,
             bus,
         })
     }
+}
+
+/// One figure for the shadow's fit: its worst output's.
+pub(crate) fn shadow_fit(s: &hydractl_samples::ShadowSample) -> f64 {
+    [s.fit_theta, s.fit_p_a, s.fit_p_b]
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold(f64::NAN, f64::min)
 }
 
 fn watch(
@@ -512,6 +596,8 @@ fn watch(
         friction,
         torque,
         events,
+        shadow,
+        drift,
     } = taps;
     let started = Instant::now();
     // The duration runs from the loop's first cycle: a run is never stopped
@@ -520,7 +606,10 @@ fn watch(
     let duration = args.duration.map(|d| Duration::from_secs_f64(d.max(0.0)));
     let mut end: Option<Instant> = None;
     let live = std::io::stderr().is_terminal();
-    eprintln!("{}", LiveLine::header(config.machine.is_some()));
+    eprintln!(
+        "{}",
+        LiveLine::header(config.machine.is_some(), config.shadow.model.is_some())
+    );
     // From the reading to each stage's output; the valve's is the
     // sensor-to-valve latency.
     let mut by_stage: [LatencyHistogram; STAGES.len()] = std::array::from_fn(|_| LatencyHistogram::new());
@@ -550,6 +639,10 @@ fn watch(
     let mut failure = None;
     let mut recorder_view = RecorderView::default();
     let mut late_pdos = 0u64;
+    let mut shadow_last: Option<hydractl_samples::ShadowSample> = None;
+    let mut shadow_windows = 0u64;
+    let mut drifts: Vec<DriftSummary> = Vec::new();
+    let mut drift_seqs: Vec<u64> = Vec::new();
     let mut can_watch = match &config.can {
         Some(can) => {
             let profile = can.resolve()?;
@@ -746,6 +839,42 @@ fn watch(
                     _ => {}
                 }
             }
+            while let Some(s) = shadow.next()? {
+                shadow_windows += 1;
+                shadow_last = Some(s);
+            }
+            while let Some(d) = drift.next()? {
+                let summary = DriftSummary::of(&d);
+                above_live_line(live);
+                match summary.outcome {
+                    "diagnosing" => tracing::warn!(
+                        event = "model_drift",
+                        seq = d.sensor_seq,
+                        "the machine drifts from its model: {} part, {} regime, residual ×{:.1}, {:.1} s into the run; diagnosing",
+                        summary.part,
+                        summary.regime,
+                        summary.rms_ratio,
+                        summary.detected_after_s
+                    ),
+                    _ => tracing::warn!(
+                        event = "model_drift",
+                        seq = d.sensor_seq,
+                        "the drift detected {:.1} s into the run: {}",
+                        summary.detected_after_s,
+                        match &summary.effect {
+                            Some(effect) => format!("{effect} {:?}", summary.params),
+                            None => "no effect of the catalog names it".to_owned(),
+                        }
+                    ),
+                }
+                match drift_seqs.iter().position(|s| *s == d.sensor_seq) {
+                    Some(i) => drifts[i] = summary,
+                    None => {
+                        drift_seqs.push(d.sensor_seq);
+                        drifts.push(summary);
+                    }
+                }
+            }
             let now = Instant::now();
             if now.saturating_duration_since(last_print) >= Duration::from_millis(500) {
                 let rate =
@@ -761,6 +890,11 @@ fn watch(
                     since_start: tracking.since_start(),
                     restarts: processes.iter().map(|p| p.restarts).sum(),
                     on_simulation: machine_expected.then_some(on_simulation),
+                    model_fit: config
+                        .shadow
+                        .model
+                        .is_some()
+                        .then(|| shadow_last.map_or(f64::NAN, |s| shadow_fit(&s))),
                 }
                 .render();
                 if live {
@@ -819,6 +953,21 @@ fn watch(
         plant_switches,
         recording: None,
         recorder: recorder_view,
+        shadow: config.shadow.model.as_ref().map(|model| ShadowSummary {
+            model: model.display().to_string(),
+            windows: shadow_windows,
+            fit_percent: shadow_last
+                .map(|s| {
+                    [("theta", s.fit_theta), ("p_a", s.fit_p_a), ("p_b", s.fit_p_b)]
+                        .into_iter()
+                        .filter(|(_, v)| v.is_finite())
+                        .collect()
+                })
+                .unwrap_or_default(),
+            residual_pressures_pa: shadow_last.map(|s| s.residual_pressures).filter(|v| v.is_finite()),
+            residual_angle_rad: shadow_last.map(|s| s.residual_angle).filter(|v| v.is_finite()),
+        }),
+        model_drift: drifts,
         can: can_watch.map(|(port, stats, profile, _)| {
             let f = stats.figures();
             CanSummary {

@@ -135,14 +135,22 @@ pub(super) struct LiveLine {
     /// With a machine expected: whether the loop now runs on the simulated
     /// plant instead. `None`: no machine, the simulated plant is the plant.
     pub(super) on_simulation: Option<bool>,
+    /// With a shadow model: its worst output's fit over the last window,
+    /// percent (NaN before the first window).
+    pub(super) model_fit: Option<f64>,
 }
 
 impl LiveLine {
     /// The two header lines, printed once before the first live line.
-    pub(super) fn header(machine_expected: bool) -> String {
-        let plant = if machine_expected { "  plant" } else { "" };
+    pub(super) fn header(machine_expected: bool, shadow: bool) -> String {
+        let plant = match (machine_expected, shadow) {
+            (true, true) => "  plant     ",
+            (true, false) => "  plant",
+            (false, _) => "",
+        };
+        let model = if shadow { " fit %" } else { "" };
         format!(
-            "{:<35}{:^35}\n{:>8}{:>9}{:>8}{:>8}  {:>8}{:>9}{:>9}{:>9}{:>10}{plant}",
+            "{:<35}{:^35}\n{:>8}{:>9}{:>8}{:>8}  {:>8}{:>9}{:>9}{:>9}{:>10}{plant}{model}",
             "",
             "tracking error, rad",
             "time s",
@@ -171,7 +179,13 @@ impl LiveLine {
             self.restarts
         );
         if let Some(on_simulation) = self.on_simulation {
-            let _ = write!(line, "  {}", if on_simulation { "SIMULATION" } else { "machine" });
+            let plant = if on_simulation { "SIMULATION" } else { "machine" };
+            // Padded only when a column follows it.
+            let width = if self.model_fit.is_some() { 10 } else { 0 };
+            let _ = write!(line, "  {plant:<width$}");
+        }
+        if let Some(fit) = self.model_fit {
+            let _ = write!(line, "{fit:>6.1}");
         }
         line
     }
@@ -262,11 +276,12 @@ mod tests {
             },
             restarts: 999_999,
             on_simulation: Some(true),
+            model_fit: None,
         };
         let line = worst.render();
         assert!(line.chars().count() <= 100, "{} columns: {line}", line.chars().count());
         assert!(line.ends_with("SIMULATION"));
-        let header = LiveLine::header(true);
+        let header = LiveLine::header(true, false);
         for h in header.lines() {
             assert!(h.chars().count() <= 100, "{h}");
         }
@@ -274,6 +289,18 @@ mod tests {
             header.lines().nth(1).map(|h| h.chars().count()),
             Some(line.chars().count() - "SIMULATION".len() + "plant".len()),
             "each value under its label"
+        );
+        let shadowed = LiveLine {
+            model_fit: Some(-100.0),
+            ..worst
+        };
+        let with_fit = shadowed.render();
+        let header = LiveLine::header(true, true);
+        assert!(with_fit.chars().count() <= 100, "{with_fit}");
+        assert_eq!(
+            header.lines().nth(1).map(|h| h.chars().count()),
+            Some(with_fit.chars().count()),
+            "the fit under its label: {with_fit}"
         );
         let plain = LiveLine {
             on_simulation: None,

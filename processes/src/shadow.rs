@@ -1,0 +1,467 @@
+//! The shadow process's logic: the loop's readings and valve commands
+//! joined into the model tools' rows, the model compared over the last
+//! window, and a drift named by a diagnosis in a thread of its own.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::Path;
+use std::thread::JoinHandle;
+
+use anyhow::{Context, Result};
+use hydractl_config::ShadowConfig;
+use hydractl_ident::greybox::{
+    diagnose, Assessment, Diagnosis, DriftAlarm, DriftTest, FitOptions, Model, ModelError, Part, Shadow, Signals,
+    REGIMES,
+};
+use hydractl_ident::Dataset;
+use hydractl_plant::EffectKind;
+use hydractl_samples::{drift, fixed_name, ModelDrift, PlantReading, ShadowSample, ValveSample};
+
+/// One control period as the model reads it: `t, u, p_a (bar), p_b, theta`.
+type Row = [f64; 5];
+
+/// Readings joined with the valve command computed from them, by sequence
+/// number, as `mcap export-csv` joins them; a run of consecutive readings
+/// from one source (a gap or a handover starts it afresh).
+pub struct Rows {
+    period_s: f64,
+    capacity: usize,
+    rows: VecDeque<Row>,
+    /// The sequence number and source of the newest row.
+    last: Option<(u64, u32)>,
+    pending: BTreeMap<u64, PlantReading>,
+    command: f64,
+    /// Rows pushed since the run of rows started.
+    pushed: u64,
+}
+
+impl Rows {
+    pub fn new(period_s: f64, capacity: usize) -> Self {
+        Self {
+            period_s,
+            capacity,
+            rows: VecDeque::with_capacity(capacity),
+            last: None,
+            pending: BTreeMap::new(),
+            command: 0.0,
+            pushed: 0,
+        }
+    }
+
+    pub fn reading(&mut self, reading: PlantReading) {
+        self.pending.insert(reading.sensor_seq, reading);
+    }
+
+    /// A valve sample: its reading becomes a row, and any reading before it
+    /// whose command never came holds the command before (as the valve does).
+    pub fn valve(&mut self, valve: ValveSample) {
+        let ready: Vec<u64> = self.pending.range(..=valve.sensor_seq).map(|(seq, _)| *seq).collect();
+        for seq in ready {
+            let Some(reading) = self.pending.remove(&seq) else {
+                continue;
+            };
+            if seq == valve.sensor_seq {
+                self.command = valve.command;
+            }
+            self.push(&reading);
+        }
+    }
+
+    fn push(&mut self, r: &PlantReading) {
+        let continues = self
+            .last
+            .is_some_and(|(seq, source)| r.sensor_seq == seq + 1 && r.source == source);
+        if !continues {
+            self.rows.clear();
+            self.pushed = 0;
+        }
+        if self.rows.len() == self.capacity {
+            self.rows.pop_front();
+        }
+        let row = [
+            r.sensor_seq as f64 * self.period_s,
+            self.command,
+            r.p_a * 1e-5,
+            r.p_b * 1e-5,
+            r.angle,
+        ];
+        if row.iter().all(|v| v.is_finite()) {
+            self.rows.push_back(row);
+            self.pushed += 1;
+            self.last = Some((r.sensor_seq, r.source));
+        } else {
+            // A reading the sensors flagged: the window starts after it.
+            self.rows.clear();
+            self.pushed = 0;
+            self.last = None;
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// Rows since the run of consecutive rows began.
+    pub fn pushed(&self) -> u64 {
+        self.pushed
+    }
+
+    /// The time of the newest row, s on the loop's clock.
+    pub fn newest_t(&self) -> Option<f64> {
+        self.rows.back().map(|r| r[0])
+    }
+
+    /// The last `n` rows: `t, u, p_a (bar), p_b, theta`.
+    pub fn last(&self, n: usize) -> impl Iterator<Item = &[f64; 5]> {
+        self.rows.iter().skip(self.rows.len().saturating_sub(n))
+    }
+
+    /// The last `n` rows as the model tools' signals.
+    pub fn signals(&self, n: usize) -> Result<Signals, ModelError> {
+        let mut columns: [Vec<f64>; 5] = Default::default();
+        for row in self.last(n) {
+            for (column, value) in columns.iter_mut().zip(row) {
+                column.push(*value);
+            }
+        }
+        let [t, u, p_a, p_b, theta] = columns;
+        let data = Dataset::from_columns(
+            "the live samples",
+            vec![("t", t), ("u", u), ("p_a", p_a), ("p_b", p_b), ("theta", theta)],
+        );
+        Signals::from_dataset(&data)
+    }
+}
+
+/// Where the shadow is with a drift.
+enum DriftState {
+    Watching,
+    /// An alarm: collecting data from after it for the diagnosis.
+    Collecting {
+        alarm: ModelDrift,
+        rows_at_alarm: u64,
+    },
+    Diagnosing {
+        alarm: ModelDrift,
+        worker: JoinHandle<Result<Diagnosis, ModelError>>,
+    },
+}
+
+/// What the shadow has to publish after a step.
+#[derive(Default)]
+pub struct Outputs {
+    pub sample: Option<ShadowSample>,
+    pub drift: Vec<ModelDrift>,
+}
+
+/// The shadow: the model, its rows and its drift test.
+pub struct ShadowWatch {
+    shadow: Shadow,
+    rows: Rows,
+    window: usize,
+    every: u64,
+    new_segments: usize,
+    diagnose_rows: u64,
+    window_s: f64,
+    assessed_at: u64,
+    alarms: u32,
+    state: DriftState,
+}
+
+impl ShadowWatch {
+    pub fn open(config: &ShadowConfig, period_s: f64) -> Result<Self> {
+        let path = config
+            .model
+            .as_deref()
+            .context("the config's [shadow] names no model")?;
+        Self::with_model(load(path)?, config, period_s)
+    }
+
+    pub fn with_model(model: Model, config: &ShadowConfig, period_s: f64) -> Result<Self> {
+        let rows_of = |s: f64| (s / period_s).round() as usize;
+        let window = rows_of(config.window_s);
+        let diagnose_rows = rows_of(config.diagnose_s);
+        Ok(Self {
+            shadow: Shadow::new(model, DriftTest::default())?,
+            rows: Rows::new(period_s, window.max(diagnose_rows)),
+            window,
+            every: rows_of(config.every_s) as u64,
+            new_segments: (config.every_s / hydractl_ident::greybox::SEGMENT_S).round() as usize,
+            diagnose_rows: diagnose_rows as u64,
+            window_s: config.window_s,
+            assessed_at: 0,
+            alarms: 0,
+            state: DriftState::Watching,
+        })
+    }
+
+    pub fn rows(&mut self) -> &mut Rows {
+        &mut self.rows
+    }
+
+    /// After new rows: a window's comparison when one is due, a drift's
+    /// alarm, its diagnosis started once enough data followed it, and its
+    /// outcome when the diagnosis is done.
+    pub fn step(&mut self, last: Option<&PlantReading>, now_ns: u64) -> Result<Outputs> {
+        let mut out = Outputs::default();
+        if let Some(done) = self.poll_diagnosis()? {
+            out.drift.push(done);
+        }
+        let pushed = self.rows.pushed();
+        if pushed < self.assessed_at {
+            self.assessed_at = 0;
+        }
+        let Some(last) = last else { return Ok(out) };
+        if self.rows.len() < self.window || pushed - self.assessed_at < self.every {
+            return Ok(out);
+        }
+        self.assessed_at = pushed;
+        let signals = self.rows.signals(self.window)?;
+        let assessment = self.shadow.assess(&signals, self.new_segments);
+        let t = self.rows.newest_t().unwrap_or(0.0);
+        match &self.state {
+            DriftState::Watching => {
+                if let Some(alarm) = assessment.alarms.iter().max_by(|a, b| a.size.total_cmp(&b.size)) {
+                    self.alarms += 1;
+                    let event = detected(alarm, last, t, now_ns);
+                    out.drift.push(event);
+                    self.state = DriftState::Collecting {
+                        alarm: event,
+                        rows_at_alarm: pushed,
+                    };
+                }
+            }
+            DriftState::Collecting { alarm, rows_at_alarm } => {
+                if pushed - rows_at_alarm >= self.diagnose_rows {
+                    let signals = self.rows.signals(self.diagnose_rows as usize)?;
+                    let model = self.shadow.model().clone();
+                    let alarm = *alarm;
+                    let worker = std::thread::Builder::new()
+                        .name("diagnose".into())
+                        .spawn(move || {
+                            // One thread: the shadow must not take the
+                            // computer's other CPUs from the loop's peers.
+                            let pool = rayon::ThreadPoolBuilder::new()
+                                .num_threads(1)
+                                .build()
+                                .map_err(|e| ModelError::Fit(e.to_string()))?;
+                            pool.install(|| diagnose(&signals, Some(&model), FitOptions::default()))
+                        })
+                        .context("starting the diagnosis")?;
+                    self.state = DriftState::Diagnosing { alarm, worker };
+                }
+            }
+            DriftState::Diagnosing { .. } => {}
+        }
+        out.sample = Some(self.sample(&assessment, last, now_ns));
+        Ok(out)
+    }
+
+    fn poll_diagnosis(&mut self) -> Result<Option<ModelDrift>> {
+        if !matches!(&self.state, DriftState::Diagnosing { worker, .. } if worker.is_finished()) {
+            return Ok(None);
+        }
+        let DriftState::Diagnosing { alarm, worker } = std::mem::replace(&mut self.state, DriftState::Watching) else {
+            return Ok(None);
+        };
+        let diagnosis = worker
+            .join()
+            .map_err(|_| anyhow::anyhow!("the diagnosis thread panicked"))?;
+        let mut event = alarm;
+        event.stage = drift::UNNAMED;
+        event.params = [f64::NAN; 4];
+        match diagnosis {
+            Ok(diagnosis) => {
+                let named = diagnosis.candidates.first().filter(|c| c.significant);
+                match named {
+                    Some(candidate) => {
+                        event.stage = drift::NAMED;
+                        event.effect = fixed_name(&candidate.effect);
+                        let keys = EffectKind::from_name(&candidate.effect)
+                            .map(|k| k.params().iter().map(|p| p.key).collect::<Vec<_>>())
+                            .unwrap_or_default();
+                        for (slot, key) in event.params.iter_mut().zip(keys) {
+                            *slot = candidate.params.get(key).copied().unwrap_or(f64::NAN);
+                        }
+                        tracing::warn!(
+                            effect = %candidate.effect,
+                            params = ?candidate.params,
+                            evidence = %candidate.evidence,
+                            "the machine drifted: named"
+                        );
+                        match diagnosis.fitted.get(&candidate.effect) {
+                            Some(model) => self.shadow.adopt(model.clone())?,
+                            None => self.shadow.restart(),
+                        }
+                    }
+                    None => {
+                        tracing::warn!(verdict = %diagnosis.verdict, "the machine drifted: no effect of the catalog names it");
+                        self.shadow.restart();
+                    }
+                }
+            }
+            Err(e) => {
+                tracing::warn!("the machine drifted; its diagnosis failed: {e}");
+                self.shadow.restart();
+            }
+        }
+        event.stage_time_ns = hydractl_bus::clock::now_ns();
+        Ok(Some(event))
+    }
+
+    fn sample(&self, a: &Assessment, last: &PlantReading, now_ns: u64) -> ShadowSample {
+        let fit = |output: &str| {
+            a.comparison
+                .outputs
+                .iter()
+                .find(|o| o.output == output)
+                .map_or(f64::NAN, |o| o.fit_percent)
+        };
+        let angle_part = [Part::Mechanical, Part::Whole]
+            .into_iter()
+            .find(|p| a.residual_rms.contains_key(p))
+            .unwrap_or(Part::Mechanical);
+        let of = |map: &BTreeMap<Part, f64>, part: Part| map.get(&part).copied().unwrap_or(f64::NAN);
+        let mut regime_pressures = [f64::NAN; 8];
+        let mut regime_angle = [f64::NAN; 8];
+        for score in &a.comparison.regimes {
+            let Some(i) = REGIMES.iter().position(|r| *r == score.regime) else {
+                continue;
+            };
+            let pressures = ["p_a", "p_b"]
+                .iter()
+                .filter_map(|o| score.nrmse.get(*o))
+                .map(|v| v * v)
+                .collect::<Vec<_>>();
+            if !pressures.is_empty() {
+                regime_pressures[i] = (pressures.iter().sum::<f64>() / pressures.len() as f64).sqrt();
+            }
+            regime_angle[i] = score.nrmse.get("theta").copied().unwrap_or(f64::NAN);
+        }
+        ShadowSample {
+            seq: 0,
+            sensor_seq: last.sensor_seq,
+            sensor_time_ns: last.sensor_time_ns,
+            stage_time_ns: now_ns,
+            window_s: self.window_s,
+            fit_theta: fit("theta"),
+            fit_p_a: fit("p_a"),
+            fit_p_b: fit("p_b"),
+            residual_pressures: of(&a.residual_rms, Part::Hydraulic),
+            residual_angle: of(&a.residual_rms, angle_part),
+            normalized_pressures: of(&a.normalized, Part::Hydraulic),
+            normalized_angle: of(&a.normalized, angle_part),
+            cusum_pressures: of(&a.cusum, Part::Hydraulic),
+            cusum_angle: of(&a.cusum, angle_part),
+            cusum_threshold: self.shadow.test().threshold,
+            regime_pressures,
+            regime_angle,
+            drift_alarms: self.alarms,
+            diagnosing: u32::from(!matches!(self.state, DriftState::Watching)),
+        }
+    }
+}
+
+fn load(path: &Path) -> Result<Model> {
+    Model::load(path).with_context(|| format!("the shadow's model {}", path.display()))
+}
+
+fn detected(alarm: &DriftAlarm, last: &PlantReading, t: f64, now_ns: u64) -> ModelDrift {
+    tracing::warn!(
+        part = alarm.part.name(),
+        regime = %alarm.regime,
+        size = alarm.size,
+        rms_ratio = alarm.rms_ratio,
+        at_s = t,
+        "the machine drifts from its model"
+    );
+    ModelDrift {
+        seq: 0,
+        sensor_seq: last.sensor_seq,
+        sensor_time_ns: last.sensor_time_ns,
+        stage_time_ns: now_ns,
+        detected_after_s: t,
+        size: alarm.size,
+        rms_ratio: alarm.rms_ratio,
+        params: [f64::NAN; 4],
+        stage: drift::DETECTED,
+        reserved: 0,
+        part: fixed_name(alarm.part.name()),
+        regime: fixed_name(&alarm.regime),
+        effect: [0; 24],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reading(seq: u64, source: u32) -> PlantReading {
+        PlantReading {
+            sensor_seq: seq,
+            angle: seq as f64 * 1e-3,
+            p_a: 50e5,
+            p_b: 40e5,
+            source,
+            ..PlantReading::default()
+        }
+    }
+
+    fn valve(seq: u64, command: f64) -> ValveSample {
+        ValveSample {
+            sensor_seq: seq,
+            command,
+            ..ValveSample::default()
+        }
+    }
+
+    #[test]
+    fn a_reading_becomes_a_row_with_its_own_command_or_the_one_before() {
+        let mut rows = Rows::new(1e-3, 10);
+        for seq in 0..3 {
+            rows.reading(reading(seq, 0));
+        }
+        rows.valve(valve(0, 0.1));
+        // The command for reading 1 never came: 2's releases both.
+        rows.valve(valve(2, 0.3));
+        let u: Vec<f64> = rows.last(10).map(|r| r[1]).collect();
+        assert_eq!(u, vec![0.1, 0.1, 0.3]);
+        let p_a = rows.last(1).next().map_or(f64::NAN, |r| r[2]);
+        assert!((p_a - 50.0).abs() < 1e-9, "Pa on the bus, bar in the rows: {p_a}");
+        assert_eq!(rows.newest_t(), Some(2e-3));
+    }
+
+    #[test]
+    fn a_gap_a_handover_or_a_flagged_reading_starts_the_window_afresh() {
+        let mut rows = Rows::new(1e-3, 10);
+        let feed = |rows: &mut Rows, r: PlantReading| {
+            let seq = r.sensor_seq;
+            rows.reading(r);
+            rows.valve(valve(seq, 0.0));
+        };
+        for seq in 0..4 {
+            feed(&mut rows, reading(seq, 0));
+        }
+        assert_eq!(rows.len(), 4);
+        feed(&mut rows, reading(6, 0));
+        assert_eq!(rows.len(), 1, "a gap");
+        feed(&mut rows, reading(7, 1));
+        assert_eq!(rows.len(), 1, "another plant");
+        feed(
+            &mut rows,
+            PlantReading {
+                angle: f64::NAN,
+                ..reading(8, 1)
+            },
+        );
+        assert!(rows.is_empty(), "a reading without its angle");
+        for seq in 9..30 {
+            feed(&mut rows, reading(seq, 1));
+        }
+        assert_eq!(rows.len(), 10, "at most its capacity");
+        assert_eq!(rows.pushed(), 21);
+    }
+}

@@ -1,0 +1,71 @@
+//! The shadow model beside the machine: on `config/machine-drift.toml` the
+//! machine's valve overlap opens from none to 0.06 between 10 s and 12 s,
+//! and the shadow, watching with the model fitted from a minute of the
+//! unchanged machine (`config/machine-model.toml`), detects the drift
+//! within 5 s of its end and names it a dead-zone of the right width; on
+//! the unchanged machine it raises nothing.
+
+use std::path::Path;
+
+use hydractl_system_tests::*;
+
+fn config(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config").join(name)
+}
+
+#[test]
+fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
+    let _turn = serial();
+    let scope = unique_scope("drift");
+    let dir = scratch_dir("drift");
+    let summary = run_config_for(&scope, &dir, &config("machine-drift.toml"), "40");
+    let drifts = summary["model_drift"].as_array().expect("model_drift");
+    assert_eq!(drifts.len(), 1, "one drift, named once: {drifts:?}");
+    let drift = &drifts[0];
+    let detected = drift["detected_after_s"].as_f64().expect("detected_after_s");
+    // The change runs from 10 s to 12 s.
+    assert!((10.0..=17.0).contains(&detected), "detected at {detected} s: {drift}");
+    assert_eq!(drift["part"], "hydraulic", "{drift}");
+    assert_eq!(drift["outcome"], "named", "{drift}");
+    assert_eq!(drift["effect"], "deadzone", "{drift}");
+    let width = drift["params"]["width"].as_f64().expect("width");
+    assert!((width - 0.06).abs() <= 0.25 * 0.06, "width {width}: {drift}");
+    let shadow = &summary["shadow"];
+    assert!(shadow["windows"].as_u64().expect("windows") >= 30, "{shadow}");
+    assert!(
+        shadow["fit_percent"]["theta"].as_f64().expect("theta's fit") > 90.0,
+        "{shadow}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
+    let _turn = serial();
+    let scope = unique_scope("nodrift");
+    let dir = scratch_dir("nodrift");
+    let unchanged = dir.join("watched.toml");
+    std::fs::write(
+        &unchanged,
+        format!(
+            "base = {:?}\n[shadow]\nmodel = {:?}\n",
+            config("machine.toml"),
+            config("machine-model.toml")
+        ),
+    )
+    .expect("config");
+    let summary = run_config_for(&scope, &dir, &unchanged, "45");
+    assert_eq!(
+        summary["model_drift"],
+        serde_json::json!([]),
+        "{}",
+        summary["model_drift"]
+    );
+    let shadow = &summary["shadow"];
+    assert!(shadow["windows"].as_u64().expect("windows") >= 35, "{shadow}");
+    for output in ["theta", "p_a", "p_b"] {
+        let fit = shadow["fit_percent"][output].as_f64().expect("fit");
+        assert!(fit > 85.0, "{output}: {fit} % in {shadow}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
