@@ -54,11 +54,8 @@ impl Rows {
     /// A valve sample: its reading becomes a row, and any reading before it
     /// whose command never came holds the command before (as the valve does).
     pub fn valve(&mut self, valve: ValveSample) {
-        let ready: Vec<u64> = self.pending.range(..=valve.sensor_seq).map(|(seq, _)| *seq).collect();
-        for seq in ready {
-            let Some(reading) = self.pending.remove(&seq) else {
-                continue;
-            };
+        while let Some(entry) = self.pending.first_entry().filter(|e| *e.key() <= valve.sensor_seq) {
+            let (seq, reading) = entry.remove_entry();
             if seq == valve.sensor_seq {
                 self.command = valve.command;
             }

@@ -19,7 +19,7 @@ use hydractl_plant::effects::Effects;
 use hydractl_plant::PlantParams;
 use serde::{Deserialize, Serialize};
 
-use super::compare::{compare, residuals, Comparison, REGIMES};
+use super::compare::{compare, residuals, Comparison};
 use super::{predict, segments, Model, ModelError, Part, Prediction, Signals};
 
 /// How one part's segment residual spread on the model's validation data.
@@ -286,7 +286,6 @@ fn worst_regime(comparison: &Comparison, part: Part) -> String {
     comparison
         .regimes
         .iter()
-        .filter(|r| REGIMES.contains(&r.regime.as_str()))
         .map(|r| {
             let value = output
                 .iter()

@@ -641,8 +641,8 @@ fn watch(
     let mut late_pdos = 0u64;
     let mut shadow_last: Option<hydractl_samples::ShadowSample> = None;
     let mut shadow_windows = 0u64;
-    let mut drifts: Vec<DriftSummary> = Vec::new();
-    let mut drift_seqs: Vec<u64> = Vec::new();
+    // By the reading it was detected at: a named drift replaces its alarm.
+    let mut drifts: Vec<(u64, DriftSummary)> = Vec::new();
     let mut can_watch = match &config.can {
         Some(can) => {
             let profile = can.resolve()?;
@@ -867,12 +867,9 @@ fn watch(
                         }
                     ),
                 }
-                match drift_seqs.iter().position(|s| *s == d.sensor_seq) {
-                    Some(i) => drifts[i] = summary,
-                    None => {
-                        drift_seqs.push(d.sensor_seq);
-                        drifts.push(summary);
-                    }
+                match drifts.iter_mut().find(|(seq, _)| *seq == d.sensor_seq) {
+                    Some((_, known)) => *known = summary,
+                    None => drifts.push((d.sensor_seq, summary)),
                 }
             }
             let now = Instant::now();
@@ -967,7 +964,7 @@ fn watch(
             residual_pressures_pa: shadow_last.map(|s| s.residual_pressures).filter(|v| v.is_finite()),
             residual_angle_rad: shadow_last.map(|s| s.residual_angle).filter(|v| v.is_finite()),
         }),
-        model_drift: drifts,
+        model_drift: drifts.into_iter().map(|(_, d)| d).collect(),
         can: can_watch.map(|(port, stats, profile, _)| {
             let f = stats.figures();
             CanSummary {
