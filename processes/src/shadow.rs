@@ -24,31 +24,44 @@ type Row = [f64; 5];
 /// from one source (a gap or a handover starts it afresh).
 pub struct Rows {
     period_s: f64,
+    /// The [`hydractl_samples::source`] whose readings the rows take: the model describes
+    /// the machine, not the simulation that stands in when it is lost.
+    watched: u32,
     capacity: usize,
     rows: VecDeque<Row>,
     /// The sequence number and source of the newest row.
     last: Option<(u64, u32)>,
     pending: BTreeMap<u64, PlantReading>,
     command: f64,
-    /// Rows pushed since the run of rows started.
-    pushed: u64,
+    /// Rows accepted since the start, and that count when the current run
+    /// of rows began: marks taken from it never run backwards over a gap.
+    accepted: u64,
+    run_start: u64,
+    gaps: u64,
 }
 
 impl Rows {
-    pub fn new(period_s: f64, capacity: usize) -> Self {
+    pub fn new(period_s: f64, capacity: usize, watched: u32) -> Self {
         Self {
             period_s,
+            watched,
             capacity,
             rows: VecDeque::with_capacity(capacity),
             last: None,
             pending: BTreeMap::new(),
             command: 0.0,
-            pushed: 0,
+            accepted: 0,
+            run_start: 0,
+            gaps: 0,
         }
     }
 
+    /// A reading; one from another source than the watched is left out,
+    /// and the rows start afresh when the watched one comes back.
     pub fn reading(&mut self, reading: PlantReading) {
-        self.pending.insert(reading.sensor_seq, reading);
+        if reading.source == self.watched {
+            self.pending.insert(reading.sensor_seq, reading);
+        }
     }
 
     /// A valve sample: its reading becomes a row, and any reading before it
@@ -68,8 +81,11 @@ impl Rows {
             .last
             .is_some_and(|(seq, source)| r.sensor_seq == seq + 1 && r.source == source);
         if !continues {
+            if self.last.is_some() {
+                self.gaps += 1;
+            }
             self.rows.clear();
-            self.pushed = 0;
+            self.run_start = self.accepted;
         }
         if self.rows.len() == self.capacity {
             self.rows.pop_front();
@@ -83,13 +99,14 @@ impl Rows {
         ];
         if row.iter().all(|v| v.is_finite()) {
             self.rows.push_back(row);
-            self.pushed += 1;
+            self.accepted += 1;
             self.last = Some((r.sensor_seq, r.source));
         } else {
             // A reading the sensors flagged: the window starts after it.
             self.rows.clear();
-            self.pushed = 0;
+            self.run_start = self.accepted;
             self.last = None;
+            self.gaps += 1;
         }
     }
 
@@ -101,9 +118,20 @@ impl Rows {
         self.rows.is_empty()
     }
 
-    /// Rows since the run of consecutive rows began.
-    pub fn pushed(&self) -> u64 {
-        self.pushed
+    /// Times the rows started afresh.
+    pub fn gaps(&self) -> u64 {
+        self.gaps
+    }
+
+    /// A mark of now, for [`Rows::since`].
+    pub fn mark(&self) -> u64 {
+        self.accepted
+    }
+
+    /// Rows of the current run accepted after `mark`: a gap since then
+    /// leaves only the rows after it.
+    pub fn since(&self, mark: u64) -> u64 {
+        self.accepted - mark.max(self.run_start)
     }
 
     /// The time of the newest row, s on the loop's clock.
@@ -139,11 +167,16 @@ enum DriftState {
     /// An alarm: collecting data from after it for the diagnosis.
     Collecting {
         alarm: ModelDrift,
-        rows_at_alarm: u64,
+        /// [`Rows::mark`] at the alarm, or at the end of the first window.
+        mark: u64,
+        attempt: u8,
     },
     Diagnosing {
         alarm: ModelDrift,
         worker: JoinHandle<Result<Diagnosis, ModelError>>,
+        /// [`Rows::mark`] at the end of the window diagnosed.
+        window_end: u64,
+        attempt: u8,
     },
 }
 
@@ -169,21 +202,23 @@ pub struct ShadowWatch {
 }
 
 impl ShadowWatch {
-    pub fn open(config: &ShadowConfig, period_s: f64) -> Result<Self> {
+    /// The shadow of the [`hydractl_samples::source`] `watched`: the machine where the
+    /// config has one, else the simulated plant.
+    pub fn open(config: &ShadowConfig, period_s: f64, watched: u32) -> Result<Self> {
         let path = config
             .model
             .as_deref()
             .context("the config's [shadow] names no model")?;
-        Self::with_model(load(path)?, config, period_s)
+        Self::with_model(load(path)?, config, period_s, watched)
     }
 
-    pub fn with_model(model: Model, config: &ShadowConfig, period_s: f64) -> Result<Self> {
+    pub fn with_model(model: Model, config: &ShadowConfig, period_s: f64, watched: u32) -> Result<Self> {
         let rows_of = |s: f64| (s / period_s).round() as usize;
         let window = rows_of(config.window_s);
         let diagnose_rows = rows_of(config.diagnose_s);
         Ok(Self {
             shadow: Shadow::new(model, DriftTest::default())?,
-            rows: Rows::new(period_s, window.max(diagnose_rows)),
+            rows: Rows::new(period_s, window.max(diagnose_rows), watched),
             window,
             every: rows_of(config.every_s) as u64,
             new_segments: (config.every_s / hydractl_ident::greybox::SEGMENT_S).round() as usize,
@@ -207,15 +242,11 @@ impl ShadowWatch {
         if let Some(done) = self.poll_diagnosis()? {
             out.drift.push(done);
         }
-        let pushed = self.rows.pushed();
-        if pushed < self.assessed_at {
-            self.assessed_at = 0;
-        }
         let Some(last) = last else { return Ok(out) };
-        if self.rows.len() < self.window || pushed - self.assessed_at < self.every {
+        if self.rows.len() < self.window || self.rows.since(self.assessed_at) < self.every {
             return Ok(out);
         }
-        self.assessed_at = pushed;
+        self.assessed_at = self.rows.mark();
         let signals = self.rows.signals(self.window)?;
         let assessment = self.shadow.assess(&signals, self.new_segments);
         let t = self.rows.newest_t().unwrap_or(0.0);
@@ -227,15 +258,18 @@ impl ShadowWatch {
                     out.drift.push(event);
                     self.state = DriftState::Collecting {
                         alarm: event,
-                        rows_at_alarm: pushed,
+                        mark: self.rows.mark(),
+                        attempt: 0,
                     };
                 }
             }
-            DriftState::Collecting { alarm, rows_at_alarm } => {
-                if pushed - rows_at_alarm >= self.diagnose_rows {
+            DriftState::Collecting { alarm, mark, attempt } => {
+                // Only consecutive rows after the alarm: a gap in them
+                // (a reader starved past its buffer) starts the count again.
+                if self.rows.since(*mark) >= self.diagnose_rows {
                     let signals = self.rows.signals(self.diagnose_rows as usize)?;
                     let model = self.shadow.model().clone();
-                    let alarm = *alarm;
+                    let (alarm, attempt) = (*alarm, *attempt);
                     let worker = std::thread::Builder::new()
                         .name("diagnose".into())
                         .spawn(move || {
@@ -248,7 +282,12 @@ impl ShadowWatch {
                             pool.install(|| diagnose(&signals, Some(&model), FitOptions::default()))
                         })
                         .context("starting the diagnosis")?;
-                    self.state = DriftState::Diagnosing { alarm, worker };
+                    self.state = DriftState::Diagnosing {
+                        alarm,
+                        worker,
+                        window_end: self.rows.mark(),
+                        attempt,
+                    };
                 }
             }
             DriftState::Diagnosing { .. } => {}
@@ -261,7 +300,13 @@ impl ShadowWatch {
         if !matches!(&self.state, DriftState::Diagnosing { worker, .. } if worker.is_finished()) {
             return Ok(None);
         }
-        let DriftState::Diagnosing { alarm, worker } = std::mem::replace(&mut self.state, DriftState::Watching) else {
+        let DriftState::Diagnosing {
+            alarm,
+            worker,
+            window_end,
+            attempt,
+        } = std::mem::replace(&mut self.state, DriftState::Watching)
+        else {
             return Ok(None);
         };
         let diagnosis = worker
@@ -293,6 +338,23 @@ impl ShadowWatch {
                             Some(model) => self.shadow.adopt(model.clone())?,
                             None => self.shadow.restart(),
                         }
+                    }
+                    None if attempt == 0 => {
+                        // An alarm raised while the machine changes sees
+                        // the change inside its first window, and an effect
+                        // fitted as one size across it may explain too
+                        // little: the next window holds the machine as it
+                        // now is.
+                        tracing::info!(
+                            verdict = %diagnosis.verdict,
+                            "the drift's first window names no effect: once more on the next"
+                        );
+                        self.state = DriftState::Collecting {
+                            alarm,
+                            mark: window_end,
+                            attempt: 1,
+                        };
+                        return Ok(None);
                     }
                     None => {
                         tracing::warn!(verdict = %diagnosis.verdict, "the machine drifted: no effect of the catalog names it");
@@ -356,6 +418,7 @@ impl ShadowWatch {
             cusum_threshold: self.shadow.test().threshold,
             regime_pressures,
             regime_angle,
+            row_gaps: self.rows.gaps(),
             drift_alarms: self.alarms,
             diagnosing: u32::from(!matches!(self.state, DriftState::Watching)),
         }
@@ -417,7 +480,7 @@ mod tests {
 
     #[test]
     fn a_reading_becomes_a_row_with_its_own_command_or_the_one_before() {
-        let mut rows = Rows::new(1e-3, 10);
+        let mut rows = Rows::new(1e-3, 10, 0);
         for seq in 0..3 {
             rows.reading(reading(seq, 0));
         }
@@ -432,8 +495,8 @@ mod tests {
     }
 
     #[test]
-    fn a_gap_a_handover_or_a_flagged_reading_starts_the_window_afresh() {
-        let mut rows = Rows::new(1e-3, 10);
+    fn a_gap_the_other_plant_or_a_flagged_reading_starts_the_window_afresh() {
+        let mut rows = Rows::new(1e-3, 10, 0);
         let feed = |rows: &mut Rows, r: PlantReading| {
             let seq = r.sensor_seq;
             rows.reading(r);
@@ -446,19 +509,38 @@ mod tests {
         feed(&mut rows, reading(6, 0));
         assert_eq!(rows.len(), 1, "a gap");
         feed(&mut rows, reading(7, 1));
-        assert_eq!(rows.len(), 1, "another plant");
+        assert_eq!(rows.len(), 1, "the other plant's reading is not the watched one's");
+        feed(&mut rows, reading(8, 0));
+        assert_eq!(rows.len(), 1, "back from the other plant");
         feed(
             &mut rows,
             PlantReading {
                 angle: f64::NAN,
-                ..reading(8, 1)
+                ..reading(9, 0)
             },
         );
         assert!(rows.is_empty(), "a reading without its angle");
-        for seq in 9..30 {
-            feed(&mut rows, reading(seq, 1));
+        assert_eq!(rows.gaps(), 3);
+        for seq in 10..31 {
+            feed(&mut rows, reading(seq, 0));
         }
         assert_eq!(rows.len(), 10, "at most its capacity");
-        assert_eq!(rows.pushed(), 21);
+        assert_eq!(rows.since(0), 21);
+    }
+
+    #[test]
+    fn rows_since_a_mark_count_only_the_run_after_the_last_gap() {
+        let mut rows = Rows::new(1e-3, 100, 0);
+        let feed = |rows: &mut Rows, seq: u64| {
+            rows.reading(reading(seq, 0));
+            rows.valve(valve(seq, 0.0));
+        };
+        (0..10).for_each(|seq| feed(&mut rows, seq));
+        let mark = rows.mark();
+        (10..15).for_each(|seq| feed(&mut rows, seq));
+        assert_eq!(rows.since(mark), 5);
+        (20..23).for_each(|seq| feed(&mut rows, seq));
+        assert_eq!(rows.since(mark), 3, "the gap at 15..20 left three rows after it");
+        assert_eq!(rows.since(rows.mark()), 0);
     }
 }

@@ -18,19 +18,19 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
     let _turn = serial();
     let scope = unique_scope("drift");
     let dir = scratch_dir("drift");
-    let summary = run_config_for(&scope, &dir, &config("machine-drift.toml"), "40");
+    let summary = run_config_for(&scope, &dir, &config("machine-drift.toml"), "50");
     let drifts = summary["model_drift"].as_array().expect("model_drift");
-    assert_eq!(drifts.len(), 1, "one drift, named once: {drifts:?}");
+    let shadow = &summary["shadow"];
+    assert_eq!(drifts.len(), 1, "one drift, named once: {drifts:?}, shadow {shadow}");
     let drift = &drifts[0];
     let detected = drift["detected_after_s"].as_f64().expect("detected_after_s");
     // The change runs from 10 s to 12 s.
     assert!((10.0..=17.0).contains(&detected), "detected at {detected} s: {drift}");
     assert_eq!(drift["part"], "hydraulic", "{drift}");
-    assert_eq!(drift["outcome"], "named", "{drift}");
+    assert_eq!(drift["outcome"], "named", "{drift}, shadow {shadow}");
     assert_eq!(drift["effect"], "deadzone", "{drift}");
     let width = drift["params"]["width"].as_f64().expect("width");
     assert!((width - 0.06).abs() <= 0.25 * 0.06, "width {width}: {drift}");
-    let shadow = &summary["shadow"];
     assert!(shadow["windows"].as_u64().expect("windows") >= 30, "{shadow}");
     assert!(
         shadow["fit_percent"]["theta"].as_f64().expect("theta's fit") > 90.0,
@@ -48,7 +48,9 @@ fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
     std::fs::write(
         &unchanged,
         format!(
-            "base = {:?}\n[shadow]\nmodel = {:?}\n",
+            // As machine-drift.toml: the shadow pauses while the simulated
+            // plant stands in, and this test is about the shadow.
+            "base = {:?}\n[supervisor]\nmachine_lost_after_periods = 100\n[shadow]\nmodel = {:?}\n",
             config("machine.toml"),
             config("machine-model.toml")
         ),

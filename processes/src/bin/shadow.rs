@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::Result;
 use hydractl_bus::{clock, run_loop, Outlet, Reader};
 use hydractl_processes::shadow::ShadowWatch;
-use hydractl_samples::{service, ModelDrift, PlantReading, ShadowSample, ValveSample};
+use hydractl_samples::{service, source, ModelDrift, PlantReading, ShadowSample, ValveSample};
 
 /// How often the readings are drained: well within the 256 samples a
 /// subscriber keeps at 1 kHz.
@@ -18,7 +18,12 @@ const DRAIN_EVERY: Duration = Duration::from_millis(50);
 fn main() -> Result<()> {
     let started = hydractl_processes::start("shadow")?;
     let bus = &started.bus;
-    let mut watch = ShadowWatch::open(&started.config.shadow, started.config.timing.control_period())?;
+    let watched = if started.config.machine.is_some() {
+        source::MACHINE
+    } else {
+        source::SIMULATION
+    };
+    let mut watch = ShadowWatch::open(&started.config.shadow, started.config.timing.control_period(), watched)?;
     let readings: Reader<PlantReading> = Reader::open(bus, service::PLANT_READING, 256)?;
     let valve: Reader<ValveSample> = Reader::open(bus, service::VALVE, 256)?;
     let fit: Outlet<ShadowSample> = Outlet::open(bus, service::SHADOW)?;

@@ -506,6 +506,9 @@ pub struct ShadowSample {
     /// sample in that regime).
     pub regime_pressures: [f64; 8],
     pub regime_angle: [f64; 8],
+    /// Times the rows started afresh after a reading lost, a handover or a
+    /// flagged reading: each one delays the next window and a diagnosis.
+    pub row_gaps: u64,
     /// Drift alarms so far.
     pub drift_alarms: u32,
     /// 1 while the diagnosis of a drift runs.

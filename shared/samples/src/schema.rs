@@ -235,7 +235,7 @@ recordable!(
     ShadowSample,
     "ShadowSample",
     stage_time_ns,
-    "uint64 seq\nuint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 window_s\nfloat64 fit_theta\nfloat64 fit_p_a\nfloat64 fit_p_b\nfloat64 residual_pressures\nfloat64 residual_angle\nfloat64 normalized_pressures\nfloat64 normalized_angle\nfloat64 cusum_pressures\nfloat64 cusum_angle\nfloat64 cusum_threshold\nfloat64[8] regime_pressures\nfloat64[8] regime_angle\nuint32 drift_alarms\nuint32 diagnosing\n"
+    "uint64 seq\nuint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 window_s\nfloat64 fit_theta\nfloat64 fit_p_a\nfloat64 fit_p_b\nfloat64 residual_pressures\nfloat64 residual_angle\nfloat64 normalized_pressures\nfloat64 normalized_angle\nfloat64 cusum_pressures\nfloat64 cusum_angle\nfloat64 cusum_threshold\nfloat64[8] regime_pressures\nfloat64[8] regime_angle\nuint64 row_gaps\nuint32 drift_alarms\nuint32 diagnosing\n"
 );
 recordable!(
     ModelDrift,

@@ -27,7 +27,9 @@ mod signals;
 pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore, REGIMES};
 pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
-pub use shadow::{segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow};
+pub use shadow::{
+    segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow, CALIBRATION_SEGMENTS,
+};
 pub use signals::{Signals, COLUMNS, REQUIRED_COLUMNS};
 
 use std::collections::BTreeMap;

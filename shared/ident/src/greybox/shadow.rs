@@ -38,6 +38,12 @@ pub struct SegmentSpread {
 /// happened to agree to within 5 % would otherwise alarm on noise.
 const MIN_STD_LOG_RMS: f64 = 0.05;
 
+/// Segments of live data an adopted model is calibrated on before the test
+/// judges it (30 s): the few validation segments of a diagnosis window
+/// show one stretch of the machine's work, and a spread measured on them
+/// alone alarmed on a residual only 17 % above it.
+pub const CALIBRATION_SEGMENTS: usize = 60;
+
 /// The residual RMS of each part over each shooting segment of `range`.
 pub fn segment_rms(signals: &Signals, prediction: &Prediction, range: Range<usize>) -> BTreeMap<Part, Vec<f64>> {
     let mut out: BTreeMap<Part, Vec<f64>> = BTreeMap::new();
@@ -75,21 +81,23 @@ pub fn validation_spread(
                 .filter(|r| **r > 0.0 && r.is_finite())
                 .map(|r| r.ln())
                 .collect();
-            if logs.len() < 2 {
-                return None;
-            }
-            let mean = logs.iter().sum::<f64>() / logs.len() as f64;
-            let var = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (logs.len() - 1) as f64;
-            Some((
-                part.name().to_owned(),
-                SegmentSpread {
-                    segments: logs.len(),
-                    mean_log_rms: mean,
-                    std_log_rms: var.sqrt(),
-                },
-            ))
+            Some((part.name().to_owned(), spread_of(&logs)?))
         })
         .collect()
+}
+
+/// The mean and spread of log segment residuals; none from fewer than two.
+fn spread_of(logs: &[f64]) -> Option<SegmentSpread> {
+    if logs.len() < 2 {
+        return None;
+    }
+    let mean = logs.iter().sum::<f64>() / logs.len() as f64;
+    let var = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (logs.len() - 1) as f64;
+    Some(SegmentSpread {
+        segments: logs.len(),
+        mean_log_rms: mean,
+        std_log_rms: var.sqrt(),
+    })
 }
 
 /// The CUSUM's design, in standard deviations of the validation spread.
@@ -132,6 +140,7 @@ pub struct Assessment {
     pub residual_rms: BTreeMap<Part, f64>,
     /// Each part's standardized log residual over the new segments.
     pub normalized: BTreeMap<Part, f64>,
+    /// Each part's CUSUM sum; none while an adopted model is calibrated.
     pub cusum: BTreeMap<Part, f64>,
     pub alarms: Vec<DriftAlarm>,
 }
@@ -152,6 +161,9 @@ pub struct Shadow {
     plant: PlantParams,
     effects: Effects,
     reference: BTreeMap<Part, SegmentSpread>,
+    /// An adopted model's log segment residuals so far, by part, until
+    /// there are [`CALIBRATION_SEGMENTS`]: then they are its reference.
+    calibration: Option<BTreeMap<Part, Vec<f64>>>,
     test: DriftTest,
     cusum: BTreeMap<Part, Cusum>,
 }
@@ -167,6 +179,7 @@ impl Shadow {
             effects,
             model,
             reference,
+            calibration: None,
             test,
             cusum: BTreeMap::new(),
         })
@@ -192,6 +205,17 @@ impl Shadow {
         for (part, segment_rms) in &rms {
             let whole = (segment_rms.iter().map(|r| r * r).sum::<f64>() / segment_rms.len().max(1) as f64).sqrt();
             residual_rms.insert(*part, whole);
+        }
+        if self.calibrate(&rms, new_segments) {
+            return Assessment {
+                comparison,
+                residual_rms,
+                normalized,
+                cusum: BTreeMap::new(),
+                alarms,
+            };
+        }
+        for (part, segment_rms) in &rms {
             let Some(reference) = self.reference.get(part) else {
                 continue;
             };
@@ -231,18 +255,45 @@ impl Shadow {
         }
     }
 
-    /// Goes on with `model` (the drift named and added), the test started
-    /// afresh against the new model's own validation spread (from the
-    /// data after the drift), else the old one's.
+    /// Goes on with `model` (the drift named and added): its reference is
+    /// its own residual on the next [`CALIBRATION_SEGMENTS`] of live data,
+    /// which it was not fitted on, and the test judges it from then on.
     pub fn adopt(&mut self, model: Model) -> Result<(), ModelError> {
-        if let Ok(reference) = reference_of(&model) {
-            self.reference = reference;
-        }
         self.effects = model.effects()?;
         self.plant = model.plant;
         self.model = model;
+        self.calibration = Some(BTreeMap::new());
         self.restart();
         Ok(())
+    }
+
+    /// True while an adopted model is being calibrated: the new segments
+    /// are kept, and once there are enough, their spread is the reference.
+    fn calibrate(&mut self, rms: &BTreeMap<Part, Vec<f64>>, new_segments: usize) -> bool {
+        let Some(calibration) = &mut self.calibration else {
+            return false;
+        };
+        for (part, segment_rms) in rms {
+            let fresh = &segment_rms[segment_rms.len().saturating_sub(new_segments)..];
+            calibration
+                .entry(*part)
+                .or_default()
+                .extend(fresh.iter().filter(|r| **r > 0.0 && r.is_finite()).map(|r| r.ln()));
+        }
+        if calibration.values().any(|logs| logs.len() < CALIBRATION_SEGMENTS) {
+            return true;
+        }
+        self.reference = calibration
+            .iter()
+            .filter_map(|(part, logs)| Some((*part, spread_of(logs)?)))
+            .collect();
+        self.calibration = None;
+        false
+    }
+
+    /// True while an adopted model is calibrated on live data.
+    pub fn calibrating(&self) -> bool {
+        self.calibration.is_some()
     }
 
     /// Starts the drift test afresh (after an alarm was handled).

@@ -129,6 +129,9 @@ struct ShadowSummary {
     /// The last window's residual RMS: pressures in Pa, angle in rad.
     residual_pressures_pa: Option<f64>,
     residual_angle_rad: Option<f64>,
+    /// Times the shadow's rows started afresh (a reading it lost, a
+    /// handover, a flagged reading).
+    row_gaps: u64,
 }
 
 #[derive(Serialize)]
@@ -963,6 +966,7 @@ fn watch(
                 .unwrap_or_default(),
             residual_pressures_pa: shadow_last.map(|s| s.residual_pressures).filter(|v| v.is_finite()),
             residual_angle_rad: shadow_last.map(|s| s.residual_angle).filter(|v| v.is_finite()),
+            row_gaps: shadow_last.map_or(0, |s| s.row_gaps),
         }),
         model_drift: drifts.into_iter().map(|(_, d)| d).collect(),
         can: can_watch.map(|(port, stats, profile, _)| {

@@ -1,0 +1,115 @@
+//! The shadow's drift test on closed-loop data: the model of the simulated
+//! plant, judged against its own validation spread, raises nothing on a
+//! run it was not calibrated on, alarms on a valve whose dead-zone opened,
+//! and an adopted model is judged only after calibrating on live data.
+
+use std::collections::BTreeMap;
+
+use hydractl_config::Config;
+use hydractl_ident::greybox::{
+    validation_spread, DriftTest, HistoryStep, Model, Shadow, Signals, CALIBRATION_SEGMENTS,
+};
+use hydractl_ident::Dataset;
+use hydractl_plant::effects::Effects;
+use hydractl_plant::Effect;
+use hydractl_sim::simulate;
+
+const WINDOW_S: f64 = 5.0;
+const EVERY_S: f64 = 1.0;
+
+/// `duration` s of `hydractl sim`, with `effect` hidden, from `seed`.
+fn closed_loop(effect: Option<&str>, seed: u64, duration: f64) -> Vec<[f64; 5]> {
+    let mut config = Config::default_sim().expect("built-in config");
+    config.simulation.seed = seed;
+    let effects: Vec<Effect> = effect.map(|e| Effect::parse(e).expect("effect")).into_iter().collect();
+    let run = simulate(&config, &effects, duration).expect("simulates");
+    run.records.iter().map(|r| [r.t, r.u, r.p_a, r.p_b, r.theta]).collect()
+}
+
+fn signals(rows: &[[f64; 5]]) -> Signals {
+    let column = |i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
+    let data = Dataset::from_columns(
+        "simulated",
+        vec![
+            ("t", column(0)),
+            ("u", column(1)),
+            ("p_a", column(2)),
+            ("p_b", column(3)),
+            ("theta", column(4)),
+        ],
+    );
+    Signals::from_dataset(&data).expect("signals")
+}
+
+/// The simulated plant's own model, with the spread its segments showed on
+/// a run of another seed as its validation.
+fn true_model() -> Model {
+    let config = Config::default_sim().expect("built-in config");
+    let validation = signals(&closed_loop(None, 101, 20.0));
+    let spread = validation_spread(&config.plant, &Effects::none(), &validation, 0..validation.len());
+    let mut model = Model::new(config.plant, Effects::none());
+    model.history.push(HistoryStep {
+        step: "baseline".to_owned(),
+        validation_nrmse: BTreeMap::new(),
+        plant: None,
+        effects: None,
+        validation_spread: spread,
+    });
+    model
+}
+
+/// Each window's assessment as the shadow makes them, live: the window
+/// ending at each `EVERY_S`; the times at which one alarmed.
+fn watch(shadow: &mut Shadow, rows: &[[f64; 5]], mut each: impl FnMut(&Shadow, f64)) -> Vec<f64> {
+    let period = rows[1][0] - rows[0][0];
+    let (window, every) = (
+        (WINDOW_S / period).round() as usize,
+        (EVERY_S / period).round() as usize,
+    );
+    let new_segments = (EVERY_S / hydractl_ident::greybox::SEGMENT_S).round() as usize;
+    let mut alarms = Vec::new();
+    let mut end = window;
+    while end <= rows.len() {
+        let assessment = shadow.assess(&signals(&rows[end - window..end]), new_segments);
+        let t = rows[end - 1][0];
+        if !assessment.alarms.is_empty() {
+            alarms.push(t);
+            shadow.restart();
+        }
+        each(shadow, t);
+        end += every;
+    }
+    alarms
+}
+
+#[test]
+fn the_true_model_raises_nothing_on_a_run_of_its_own_and_alarms_on_a_wider_deadzone() {
+    let mut shadow = Shadow::new(true_model(), DriftTest::default()).expect("shadow");
+    let unchanged = watch(&mut shadow, &closed_loop(None, 7, 60.0), |_, _| {});
+    assert!(unchanged.is_empty(), "alarms on the unchanged plant at {unchanged:?} s");
+    let mut shadow = Shadow::new(true_model(), DriftTest::default()).expect("shadow");
+    let worn = watch(
+        &mut shadow,
+        &closed_loop(Some("deadzone:width=0.06"), 7, 30.0),
+        |_, _| {},
+    );
+    let first = worn.first().copied().expect("the dead-zone alarms");
+    assert!(first <= 15.0, "first alarm at {first} s");
+}
+
+#[test]
+fn an_adopted_model_is_judged_only_after_calibrating_on_live_data() {
+    let mut shadow = Shadow::new(true_model(), DriftTest::default()).expect("shadow");
+    shadow.adopt(true_model()).expect("adopts");
+    let mut calibrated_at = None;
+    let alarms = watch(&mut shadow, &closed_loop(None, 9, 50.0), |shadow, t| {
+        if calibrated_at.is_none() && !shadow.calibrating() {
+            calibrated_at = Some(t);
+        }
+    });
+    // Each window brings two segments the test has not seen.
+    let expected = WINDOW_S + (CALIBRATION_SEGMENTS / 2 - 1) as f64 * EVERY_S;
+    let at = calibrated_at.expect("calibrated");
+    assert!((at - expected).abs() <= 1.01, "calibrated at {at} s, not {expected} s");
+    assert!(alarms.is_empty(), "alarms at {alarms:?} s");
+}
