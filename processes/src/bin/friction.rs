@@ -27,13 +27,14 @@ fn main() -> Result<()> {
                 valve_command = v.command;
             }
             let Some(s) = sensor.latest()? else { return Ok(()) };
-            let compensation = stage.process(&estimate_of(&s), reference_velocity, valve_command);
+            let friction = stage.process(&estimate_of(&s), reference_velocity, valve_command);
             out.publish(FrictionSample {
                 sensor_seq: s.sensor_seq,
                 sensor_time_ns: s.sensor_time_ns,
                 stage_time_ns: clock::now_ns(),
-                compensation,
+                compensation: friction.compensation,
                 blended_velocity: stage.blended_velocity(),
+                load_feedforward: friction.load_feedforward,
             })?;
             Ok(())
         })

@@ -8,7 +8,7 @@ use hydractl_config::{PositionVariant, Structure};
 use hydractl_processes::handover::{Duty, HandoverInbox, Role, Tracker};
 use hydractl_processes::{estimate_of, time_of};
 use hydractl_samples::{code, service, FrictionSample, PositionSample, SensorSample};
-use hydractl_stages::PositionStage;
+use hydractl_stages::{FrictionOutput, PositionStage};
 
 fn main() -> Result<()> {
     let started = hydractl_processes::start("position")?;
@@ -57,7 +57,11 @@ fn main() -> Result<()> {
             }
             let estimate = estimate_of(&latest_sensor);
             let time = time_of(f.sensor_seq, config);
-            let output = stage.process(time, &estimate, f.compensation);
+            let friction = FrictionOutput {
+                compensation: f.compensation,
+                load_feedforward: f.load_feedforward,
+            };
+            let output = stage.process(time, &estimate, friction);
             let sample = PositionSample {
                 sensor_seq: f.sensor_seq,
                 sensor_time_ns: f.sensor_time_ns,
@@ -74,7 +78,7 @@ fn main() -> Result<()> {
                 Duty::Publish => out.publish(sample)?,
                 Duty::Track => {
                     standby_out.publish(sample)?;
-                    tracker.processed(f.sensor_seq, (time, estimate, f.compensation));
+                    tracker.processed(f.sensor_seq, (time, estimate, friction));
                     if let Some((output, (time, estimate, friction))) =
                         tracker.matched(newest_running(running.latest()?))
                     {

@@ -4,7 +4,7 @@
 //! controllers change: the plant a tuned config simulates is the base's.
 
 use hydractl_plant::effects::Effects;
-use hydractl_plant::EffectKind;
+use hydractl_plant::{EffectKind, PlantParams};
 use serde::Serialize;
 
 use crate::Config;
@@ -39,8 +39,17 @@ pub struct Compensation {
 /// A null offset smaller than this is no offset: the fit's own scatter.
 const NEGLIGIBLE_OFFSET: f64 = 1e-3;
 
-/// The compensators of `base` set from the model's `effects`.
-pub fn compensate(base: &Config, effects: &Effects) -> Compensation {
+/// Valve command per N·m of load held, in steady state: the load's
+/// pressure difference leaks past the piston and the spool's centre,
+/// (C_em + 2 K_c) Δp, and the valve must meter that flow back, 4 K_q u
+/// (eq. 8–9 of the crane paper, both chambers). In position-only control
+/// the loop's output is this command, not a torque.
+pub fn command_per_torque(plant: &PlantParams) -> f64 {
+    (plant.leakage + 2.0 * plant.flow_pressure_coefficient) / (4.0 * plant.flow_gain * plant.displacement)
+}
+
+/// The compensators of `base` set from the model's `plant` and `effects`.
+pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Compensation {
     let mut config = base.clone();
     let mut changes = Vec::new();
     let mut not_compensated = Vec::new();
@@ -142,6 +151,70 @@ pub fn compensate(base: &Config, effects: &Effects) -> Compensation {
             );
         }
     }
+    // The load's feed-forward of both outer loops: N·m of torque reference
+    // in the cascade, valve command in position-only control.
+    let per_torque = command_per_torque(plant);
+    for (section, load, scale) in [
+        ("control.cascade.friction.load", &mut control.cascade.friction.load, 1.0),
+        (
+            "control.position_only.friction.load",
+            &mut control.position_only.friction.load,
+            per_torque,
+        ),
+    ] {
+        let units = if scale == 1.0 {
+            String::new()
+        } else {
+            format!(" ({scale:.3e} command per N·m: the flow the load's pressure leaks)")
+        };
+        if let Some(friction) = effects.coulomb_friction {
+            set(
+                &mut changes,
+                &format!("{section}.coulomb"),
+                &mut load.coulomb,
+                friction.coulomb * scale,
+                EffectKind::CoulombFriction,
+                &format!(
+                    "the fitted sliding friction ({:.1} N·m) pushed with the motion ahead of the loop, \
+                     so that the integrator need not build it up at every reversal{units}",
+                    friction.coulomb
+                ),
+            );
+        }
+        if let Some(gravity) = effects.gravity_load {
+            let reason = format!(
+                "the load's weight held ahead of the loop at the measured angle, \
+                 {:.1} N·m · sin(θ − {:.3}) as fitted{units}",
+                gravity.amplitude, gravity.offset
+            );
+            set(
+                &mut changes,
+                &format!("{section}.gravity_amplitude"),
+                &mut load.gravity_amplitude,
+                gravity.amplitude * scale,
+                EffectKind::GravityLoad,
+                &reason,
+            );
+            set(
+                &mut changes,
+                &format!("{section}.gravity_offset"),
+                &mut load.gravity_offset,
+                gravity.offset,
+                EffectKind::GravityLoad,
+                &reason,
+            );
+        }
+    }
+    if let Some(friction) = effects.coulomb_friction.filter(|f| f.breakaway > f.coulomb) {
+        not(
+            EffectKind::CoulombFriction,
+            &format!(
+                "the breakaway excess ({:.1} N·m over the sliding level): pushed at every start it \
+                 would throw a resting load; the integrator takes it",
+                friction.breakaway - friction.coulomb
+            ),
+        );
+    }
     if let Some(asymmetry) = effects.asymmetric_gain {
         set(
             &mut changes,
@@ -153,23 +226,38 @@ pub fn compensate(base: &Config, effects: &Effects) -> Compensation {
              alike for the same command",
         );
     }
-    let unanswered: [(bool, EffectKind, &str); 7] = [
-        (
-            effects.time_delay.is_some(),
+    if let Some(delay) = effects.time_delay.filter(|d| d.delay_s > 0.0) {
+        // Skogestad's SIMC rule for a loop with dead time θ: integral time
+        // τ_I = 4 (τ_c + θ), with the tight closed-loop time τ_c = θ. The
+        // proportional gain stays: its pressure feedback damps the
+        // hydraulic mode, and halving it made the error 2–3× worse under a
+        // 20 ms delay. A Smith predictor would need the torque response's
+        // model inside the loop and goes wrong with a delay misjudged; one
+        // fitted number sets the gains robustly.
+        let integral_time = 8.0 * delay.delay_s;
+        let pid = &mut control.torque.pid;
+        if pid.ki > 0.0 && pid.kp / pid.ki < integral_time {
+            set(
+                &mut changes,
+                "control.torque.pid.ki",
+                &mut pid.ki,
+                pid.kp / integral_time,
+                EffectKind::TimeDelay,
+                &format!(
+                    "the torque loop's integral time to 8 × the fitted delay ({:.1} ms), Skogestad's SIMC \
+                     rule with τ_c = θ: the integrator's phase lag and the delay's together would \
+                     leave the loop ringing",
+                    delay.delay_s * 1e3
+                ),
+            );
+        }
+        not(
             EffectKind::TimeDelay,
-            "no controller takes a delay into account yet (a Smith predictor, or gains tuned for it)",
-        ),
-        (
-            effects.coulomb_friction.is_some(),
-            EffectKind::CoulombFriction,
-            "the friction compensation's map is in valve command and the model's friction in N·m: \
-             the conversion through the flow-pressure coefficient is not written yet",
-        ),
-        (
-            effects.gravity_load.is_some(),
-            EffectKind::GravityLoad,
-            "the loops have no gravity feed-forward yet",
-        ),
+            "the H∞ inner loop and the position-only loops keep their gains: their tuning does not \
+             follow from one dead time as simply",
+        );
+    }
+    let unanswered: [(bool, EffectKind, &str); 4] = [
         (
             effects.backlash.is_some(),
             EffectKind::Backlash,
@@ -178,7 +266,9 @@ pub fn compensate(base: &Config, effects: &Effects) -> Compensation {
         (
             effects.quantization.is_some(),
             EffectKind::Quantization,
-            "the velocity estimator's cutoff is not matched to the encoder's step yet",
+            "the encoder's step limits the loop, not the velocity estimator: on the catalog's 10° \
+             step, cutoffs from 150 down to 20 rad/s left the tracking error at 0.079–0.084 rad \
+             (0.085 at 150), while the clean plant's grew 2–14×; a finer encoder is the answer",
         ),
         (
             effects.orifice_flow.is_some(),
@@ -220,7 +310,7 @@ mod tests {
             time_delay: Some(TimeDelay { delay_s: 0.01 }),
             ..Effects::none()
         };
-        let tuned = compensate(&base, &effects);
+        let tuned = compensate(&base, &base.plant, &effects);
         let valve = &tuned.config.control.valve;
         assert_eq!(
             (valve.deadzone_width, valve.deadzone_smoothing, valve.limit),
@@ -228,6 +318,9 @@ mod tests {
         );
         assert_eq!(tuned.config.control.torque.pid.output_max, 0.6);
         assert_eq!(tuned.config.control.position_only.pid.output_min, -0.6);
+        // A 10 ms delay: the torque loop's integral time to 80 ms.
+        let pid = tuned.config.control.torque.pid;
+        assert!((pid.kp / pid.ki - 0.08).abs() < 1e-12, "{pid:?}");
         // The plant the tuned config simulates is the base's.
         assert_eq!(tuned.config.plant, base.plant);
         assert_eq!(tuned.config.effects, base.effects);
@@ -240,9 +333,41 @@ mod tests {
     }
 
     #[test]
+    fn coulomb_friction_and_gravity_feed_both_outer_loops_each_in_its_units() {
+        let base = Config::default_sim().expect("default");
+        let effects = Effects {
+            coulomb_friction: Some(hydractl_plant::effects::CoulombFriction {
+                coulomb: 40.0,
+                breakaway: 40.0,
+                stribeck_velocity: 0.05,
+            }),
+            gravity_load: Some(hydractl_plant::effects::GravityLoad {
+                amplitude: 200.0,
+                offset: 0.3,
+            }),
+            ..Effects::none()
+        };
+        let tuned = compensate(&base, &base.plant, &effects);
+        let cascade = tuned.config.control.cascade.friction.load;
+        assert_eq!(
+            (cascade.coulomb, cascade.gravity_amplitude, cascade.gravity_offset),
+            (40.0, 200.0, 0.3)
+        );
+        let position = tuned.config.control.position_only.friction.load;
+        let per_torque = command_per_torque(&base.plant);
+        assert!((position.coulomb - 40.0 * per_torque).abs() < 1e-15);
+        assert!((position.gravity_amplitude - 200.0 * per_torque).abs() < 1e-15);
+        // The default rotator: the flow 40 N·m leak takes a hundredth of
+        // the valve's command.
+        assert!((1e-3..=2e-2).contains(&position.coulomb), "{}", position.coulomb);
+        assert!(tuned.not_compensated.is_empty(), "{:?}", tuned.not_compensated);
+        assert_eq!(tuned.config.plant, base.plant);
+    }
+
+    #[test]
     fn no_effect_changes_nothing() {
         let base = Config::default_sim().expect("default");
-        let tuned = compensate(&base, &Effects::none());
+        let tuned = compensate(&base, &base.plant, &Effects::none());
         assert!(tuned.changes.is_empty() && tuned.not_compensated.is_empty());
         assert_eq!(tuned.config, base);
     }

@@ -1,6 +1,6 @@
 use serde::{Deserialize, Serialize};
 
-use crate::{require_non_negative, require_positive, ControlError};
+use crate::{require_finite, require_non_negative, require_positive, ControlError};
 
 /// A static map by linear interpolation between points with strictly
 /// increasing abscissae; held constant beyond the ends.
@@ -76,9 +76,70 @@ pub struct FrictionCompensatorParams {
     #[serde(default = "default_mu")]
     pub mu: f64,
     /// The static pseudo-friction map, velocity (rad/s) → compensation, in
-    /// the units of the loop it feeds (valve command for position-only
-    /// control, N·m for the cascade).
+    /// valve command: added to the outer loop's output in position-only
+    /// control, to the torque loop's in the cascade (the rotary paper's
+    /// "PID with friction compensation").
     pub map: StaticMap,
+    /// What the load takes, answered ahead of the outer loop.
+    #[serde(default)]
+    pub load: LoadFeedforward,
+}
+
+/// The torque the load takes, answered ahead of the loop rather than by
+/// its integrator: the Coulomb friction and gravity load a fitted model
+/// found (`hydractl model compensate`). In the units of the outer loop's
+/// output: N·m of torque reference in the cascade, where the torque loop
+/// then makes it, and valve command in position-only control. Zero: none.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoadFeedforward {
+    /// The Coulomb level, pushed in the blended velocity's direction
+    /// (eq. 1's `v`): `coulomb · clamp(v / coulomb_band, −1, 1)`.
+    pub coulomb: f64,
+    /// rad/s. Below it the push fades to zero: at rest the blended velocity
+    /// is μ in the valve's direction, and a full push there would rock a
+    /// resting load from side to side.
+    pub coulomb_band: f64,
+    /// Gravity: `gravity_amplitude · sin(θ − gravity_offset)` at the
+    /// measured angle θ (rad), as the plant's `gravity_load` writes it.
+    pub gravity_amplitude: f64,
+    pub gravity_offset: f64,
+}
+
+impl Default for LoadFeedforward {
+    fn default() -> Self {
+        Self {
+            coulomb: 0.0,
+            coulomb_band: 0.01,
+            gravity_amplitude: 0.0,
+            gravity_offset: 0.0,
+        }
+    }
+}
+
+impl LoadFeedforward {
+    fn validate(&self) -> Result<(), ControlError> {
+        require_non_negative("load.coulomb", self.coulomb)?;
+        require_positive("load.coulomb_band", self.coulomb_band)?;
+        require_finite("load.gravity_amplitude", self.gravity_amplitude)?;
+        require_finite("load.gravity_offset", self.gravity_offset)
+    }
+
+    /// The feed-forward at the blended velocity and the measured angle; an
+    /// angle the sensors flagged (not finite) leaves gravity out.
+    pub fn eval(&self, blended_velocity: f64, angle: f64) -> f64 {
+        let coulomb = if blended_velocity.is_finite() {
+            self.coulomb * (blended_velocity / self.coulomb_band).clamp(-1.0, 1.0)
+        } else {
+            0.0
+        };
+        let gravity = if angle.is_finite() && self.gravity_amplitude != 0.0 {
+            self.gravity_amplitude * (angle - self.gravity_offset).sin()
+        } else {
+            0.0
+        };
+        coulomb + gravity
+    }
 }
 
 fn default_alpha_width() -> f64 {
@@ -107,6 +168,7 @@ impl FrictionCompensator {
         require_positive("alpha_width", params.alpha_width)?;
         require_non_negative("mu", params.mu)?;
         params.map.validate("friction compensation map")?;
+        params.load.validate()?;
         let sigma_squared = params.alpha_width.powi(2) / 100.0_f64.ln();
         Ok(Self {
             params,
@@ -137,6 +199,12 @@ impl FrictionCompensator {
 
     pub fn blended_velocity(&self) -> f64 {
         self.blended_velocity
+    }
+
+    /// The load's feed-forward (outer-loop units) at the last update's
+    /// blended velocity and the measured `angle`.
+    pub fn load_feedforward(&self, angle: f64) -> f64 {
+        self.params.load.eval(self.blended_velocity, angle)
     }
 
     pub fn reset(&mut self) {
@@ -186,6 +254,7 @@ mod tests {
             alpha_width: 0.1,
             mu: 0.001,
             map: map(),
+            load: LoadFeedforward::default(),
         })
         .expect("valid");
         assert_eq!(c.alpha(0.0), 1.0);
@@ -200,6 +269,7 @@ mod tests {
             alpha_width: 0.1,
             mu: 0.001,
             map: map(),
+            load: LoadFeedforward::default(),
         })
         .expect("valid");
         // At rest with a positive valve current: v = 0 + 0 + μ = 0.001 → 0.1.
@@ -216,5 +286,42 @@ mod tests {
         let alpha = c.alpha(r);
         c.update(0.2, r, -1.0);
         assert!((c.blended_velocity() - ((1.0 - alpha) * 0.2 + alpha * r - 0.001)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_load_feedforward_pushes_with_the_motion_and_holds_against_gravity() {
+        let load = LoadFeedforward {
+            coulomb: 40.0,
+            coulomb_band: 0.01,
+            gravity_amplitude: 300.0,
+            gravity_offset: 0.2,
+        };
+        let mut c = FrictionCompensator::new(FrictionCompensatorParams {
+            alpha_width: 0.1,
+            mu: 0.001,
+            map: map(),
+            load,
+        })
+        .expect("valid");
+        // Moving with the reference: the whole Coulomb level.
+        c.update(0.5, 0.5, 0.2);
+        assert!((c.load_feedforward(0.2) - 40.0).abs() < 1e-9);
+        c.update(-0.5, -0.5, 0.2);
+        assert!((c.load_feedforward(0.2) + 40.0).abs() < 1e-9);
+        // At rest the valve's direction is only μ: a tenth of the level.
+        c.update(0.0, 0.0, 0.3);
+        assert!((c.load_feedforward(0.2) - 4.0).abs() < 1e-9);
+        // Gravity at the angle, as the plant's gravity load.
+        let gravity = 300.0 * (1.0_f64 - 0.2).sin();
+        assert!((c.load_feedforward(1.0) - 4.0 - gravity).abs() < 1e-9);
+        assert!(
+            (c.load_feedforward(f64::NAN) - 4.0).abs() < 1e-9,
+            "a flagged angle: no gravity"
+        );
+        let bad = LoadFeedforward {
+            coulomb_band: 0.0,
+            ..load
+        };
+        assert!(bad.validate().is_err());
     }
 }

@@ -13,7 +13,7 @@ mod trajectory;
 mod valve;
 mod velocity;
 
-pub use friction::{FrictionCompensator, FrictionCompensatorParams, StaticMap};
+pub use friction::{FrictionCompensator, FrictionCompensatorParams, LoadFeedforward, StaticMap};
 pub use hinf::{HInfinity, HInfinityParams, PAPER_HINF_DEN, PAPER_HINF_NUM};
 pub use limit_cycle::{LimitCycleDetector, LimitCycleParams};
 pub use mfc::{Mfc, MfcParams};

@@ -1,8 +1,8 @@
 //! No NaN or infinity out of any controller for any bounded input.
 
 use hydractl_control::{
-    FrictionCompensator, FrictionCompensatorParams, HInfinity, HInfinityParams, Mfc, MfcParams, Pid, PidParams,
-    StaticMap, ValveShaper, ValveShaperParams, VelocityEstimator, VelocityEstimatorParams,
+    FrictionCompensator, FrictionCompensatorParams, HInfinity, HInfinityParams, LoadFeedforward, Mfc, MfcParams, Pid,
+    PidParams, StaticMap, ValveShaper, ValveShaperParams, VelocityEstimator, VelocityEstimatorParams,
 };
 use proptest::prelude::*;
 
@@ -30,6 +30,7 @@ proptest! {
         let mut hinf = HInfinity::new(HInfinityParams::default(), ts).expect("valid");
         let mut friction = FrictionCompensator::new(FrictionCompensatorParams {
             alpha_width: 0.1, mu: 0.001, map: StaticMap::linear(0.5, 3.0),
+            load: LoadFeedforward { coulomb: 40.0, gravity_amplitude: 200.0, ..LoadFeedforward::default() },
         }).expect("valid");
         let mut valve = ValveShaper::new(ValveShaperParams { deadzone_width: 0.1, ..ValveShaperParams::default() }, ts).expect("valid");
         let mut velocity = VelocityEstimator::new(VelocityEstimatorParams::default(), ts).expect("valid");
@@ -42,6 +43,8 @@ proptest! {
             prop_assert!(u.is_finite() && (-1.0..=1.0).contains(&u));
             let f = friction.update(a, b, a - b);
             prop_assert!(f.is_finite() && f.abs() <= 1.5);
+            let load = friction.load_feedforward(a);
+            prop_assert!(load.is_finite() && load.abs() <= 240.0);
             let v = valve.update(a);
             prop_assert!(v.is_finite() && (-1.0..=1.0).contains(&v));
             prop_assert!(velocity.update(a).is_finite());

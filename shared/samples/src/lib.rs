@@ -247,6 +247,9 @@ pub struct FrictionSample {
     pub compensation: f64,
     /// The blended velocity of the crane paper's eq. (1), rad/s.
     pub blended_velocity: f64,
+    /// The load's feed-forward (Coulomb friction, gravity) in the outer
+    /// loop's output units: N·m in the cascade, valve command otherwise.
+    pub load_feedforward: f64,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
@@ -648,7 +651,7 @@ mod tests {
     fn no_hidden_padding() {
         assert_eq!(size_of::<PlantReading>(), 7 * 8 + 8);
         assert_eq!(size_of::<SensorSample>(), 8 * 8 + 8);
-        assert_eq!(size_of::<FrictionSample>(), 5 * 8);
+        assert_eq!(size_of::<FrictionSample>(), 6 * 8);
         assert_eq!(size_of::<PositionSample>(), 8 * 8 + 8);
         assert_eq!(size_of::<TorqueSample>(), 6 * 8 + 8);
         assert_eq!(size_of::<ValveSample>(), 5 * 8 + 8);

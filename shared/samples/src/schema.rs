@@ -170,7 +170,7 @@ recordable!(
     FrictionSample,
     "FrictionSample",
     stage_time_ns,
-    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 compensation\nfloat64 blended_velocity\n"
+    "uint64 sensor_seq\nuint64 sensor_time_ns\nuint64 stage_time_ns\nfloat64 compensation\nfloat64 blended_velocity\nfloat64 load_feedforward\n"
 );
 recordable!(
     PositionSample,

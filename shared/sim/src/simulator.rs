@@ -58,8 +58,11 @@ pub struct Record {
     pub torque: f64,
     /// Torque reference of the cascade's outer loop, N·m (empty in position-only control).
     pub torque_ref: f64,
-    /// Friction compensation, in the outer loop's units.
+    /// The friction map's compensation, valve command.
     pub friction_comp: f64,
+    /// The load's feed-forward (Coulomb friction, gravity), in the outer
+    /// loop's output units.
+    pub load_feedforward: f64,
     /// True plant state, for checking: actuator angle and velocity, load angle, spool.
     pub theta_true: f64,
     pub omega_true: f64,
@@ -227,7 +230,8 @@ pub fn simulate_streaming(
             omega_est: out.sensor.velocity,
             torque: out.sensor.torque,
             torque_ref: out.torque_reference,
-            friction_comp: out.friction,
+            friction_comp: out.friction.compensation,
+            load_feedforward: out.friction.load_feedforward,
             theta_true: state.angle,
             omega_true: state.velocity,
             theta_load: state.load_angle,
@@ -265,7 +269,7 @@ pub fn simulate_streaming(
 /// per [`Record`]; `torque_ref` is empty where there is none.
 pub struct CsvRows {
     writer: csv::Writer<std::fs::File>,
-    fields: [String; 15],
+    fields: [String; 16],
     path: String,
 }
 
@@ -289,6 +293,7 @@ impl CsvRows {
                 "torque",
                 "torque_ref",
                 "friction_comp",
+                "load_feedforward",
                 "theta_true",
                 "omega_true",
                 "theta_load",
@@ -318,6 +323,7 @@ impl CsvRows {
             r.torque,
             r.torque_ref,
             r.friction_comp,
+            r.load_feedforward,
             r.theta_true,
             r.omega_true,
             r.theta_load,

@@ -3,7 +3,7 @@
 
 use hydractl_config::{Config, PositionVariant, TorqueVariant};
 use hydractl_sim::build_plant;
-use hydractl_stages::{ControlStack, PositionStage, TorqueStage};
+use hydractl_stages::{ControlStack, FrictionOutput, PositionStage, TorqueStage};
 
 /// The valve command's bump (its second difference, over the range 2; the
 /// loop's own motion is not a bump): the largest in the 50 ms around the
@@ -48,8 +48,12 @@ fn switch_position(from: PositionVariant, variant: PositionVariant, switch_s: f6
         let raw = sensors.read(&plant.state());
         if k == switch_at {
             let sensor = stack.sensor.clone().process(&raw);
-            let old = stack.position.clone().process(time, &sensor, 0.0).output;
-            let new = standby.clone().process(time, &sensor, 0.0).output;
+            let old = stack
+                .position
+                .clone()
+                .process(time, &sensor, FrictionOutput::default())
+                .output;
+            let new = standby.clone().process(time, &sensor, FrictionOutput::default()).output;
             // Within what one encoder count is worth through the MFC's gains.
             assert!(
                 (old - new).abs() < 10.0,
@@ -105,9 +109,9 @@ fn switch_torque(from: TorqueVariant, to: TorqueVariant, switch_s: f64) -> (f64,
         let mut running = stack.torque.clone();
         let out = stack.step(time, &raw);
         if k < switch_at {
-            let running = running.process(&out.position, &out.sensor, out.friction);
-            standby.process(&out.position, &out.sensor, out.friction);
-            standby.track(running, &out.position, &out.sensor, out.friction);
+            let running = running.process(&out.position, &out.sensor, out.friction.compensation);
+            standby.process(&out.position, &out.sensor, out.friction.compensation);
+            standby.track(running, &out.position, &out.sensor, out.friction.compensation);
         }
         meter.record(k, switch_at, out.command);
         plant.advance(out.command, substeps);

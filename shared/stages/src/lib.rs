@@ -14,7 +14,7 @@ use hydractl_config::{Config, Structure};
 use hydractl_control::ControlError;
 use hydractl_plant::RawReading;
 
-pub use friction::FrictionStage;
+pub use friction::{FrictionOutput, FrictionStage};
 pub use position::{OuterLoop, PositionOutput, PositionStage};
 pub use sensor::{SensorEstimate, SensorStage};
 pub use torque::{InnerLoop, TorqueStage};
@@ -50,7 +50,7 @@ pub struct ControlStack {
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StackOutput {
     pub sensor: SensorEstimate,
-    pub friction: f64,
+    pub friction: FrictionOutput,
     pub position: PositionOutput,
     /// The torque reference (cascade), or NaN in position-only control.
     pub torque_reference: f64,
@@ -79,7 +79,7 @@ impl ControlStack {
             .friction
             .process(&sensor, self.last_reference_velocity, self.last_command);
         let position = self.position.process(time, &sensor, friction);
-        let demand = self.torque.process(&position, &sensor, friction);
+        let demand = self.torque.process(&position, &sensor, friction.compensation);
         let torque_reference = match self.structure {
             Structure::Position => f64::NAN,
             Structure::Cascade => position.output,

@@ -3,7 +3,7 @@
 use hydractl_config::{Config, OuterPart, PositionVariant, Structure};
 use hydractl_control::{Mfc, Pid, Reference, Trajectory};
 
-use crate::{in_section, SensorEstimate, StackError};
+use crate::{in_section, FrictionOutput, SensorEstimate, StackError};
 
 /// The outer loop's variants.
 #[derive(Debug, Clone)]
@@ -69,14 +69,11 @@ impl PositionStage {
         self.structure
     }
 
-    /// One period. The friction compensation (a valve command) joins this
-    /// loop's output only when this loop drives the valve (position-only);
-    /// in the cascade the torque stage adds it.
-    pub fn process(&mut self, time: f64, sensor: &SensorEstimate, friction: f64) -> PositionOutput {
-        let friction = match self.structure {
-            Structure::Position => friction,
-            Structure::Cascade => 0.0,
-        };
+    /// One period. The load's feed-forward joins this loop's output; the
+    /// map's compensation (a valve command) only when this loop drives the
+    /// valve (position-only): in the cascade the torque stage adds it.
+    pub fn process(&mut self, time: f64, sensor: &SensorEstimate, friction: FrictionOutput) -> PositionOutput {
+        let friction = self.feedforward(friction);
         let reference = self.trajectory.sample(time);
         let error = reference.angle - sensor.angle;
         if !self.started {
@@ -96,16 +93,21 @@ impl PositionStage {
         PositionOutput { reference, output }
     }
 
+    /// What the friction stage adds to this loop's output.
+    fn feedforward(&self, friction: FrictionOutput) -> f64 {
+        match self.structure {
+            Structure::Position => friction.compensation + friction.load_feedforward,
+            Structure::Cascade => friction.load_feedforward,
+        }
+    }
+
     /// Bumpless transfer: called after [`PositionStage::process`] for the
     /// same period, sets this loop's state as if its output had been
     /// `output`, the output of the loop it is about to replace, so that it
     /// goes on from there. A standby stage calls it every period while it
     /// tracks the running one.
-    pub fn track(&mut self, output: f64, time: f64, sensor: &SensorEstimate, friction: f64) {
-        let friction = match self.structure {
-            Structure::Position => friction,
-            Structure::Cascade => 0.0,
-        };
+    pub fn track(&mut self, output: f64, time: f64, sensor: &SensorEstimate, friction: FrictionOutput) {
+        let friction = self.feedforward(friction);
         let reference = self.trajectory.sample(time);
         match &mut self.outer {
             OuterLoop::Pid(pid) => pid.initialize_output(output, reference.angle - sensor.angle, friction),

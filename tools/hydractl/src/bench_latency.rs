@@ -22,7 +22,7 @@ use hydractl_config::Config;
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
 use hydractl_stages::{
-    FrictionStage, PositionOutput, PositionStage, SensorEstimate, SensorStage, TorqueStage, ValveStage,
+    FrictionOutput, FrictionStage, PositionOutput, PositionStage, SensorEstimate, SensorStage, TorqueStage, ValveStage,
 };
 
 use crate::slowest::Slowest;
@@ -121,9 +121,18 @@ impl Stage {
                 s.velocity = e.velocity;
                 s.torque = e.torque;
             }
-            Stage::Friction(stage) => s.friction = stage.process(&estimate, s.reference_velocity, s.command),
+            Stage::Friction(stage) => {
+                s.friction = stage.process(&estimate, s.reference_velocity, s.command).compensation;
+            }
             Stage::Position(stage, period) => {
-                let out = stage.process(s.seq as f64 * *period, &estimate, s.friction);
+                // The bench's wire sample has no slot for the load's
+                // feed-forward: the friction stage computes it all the
+                // same, and adding it here would take no time to speak of.
+                let friction = FrictionOutput {
+                    compensation: s.friction,
+                    load_feedforward: 0.0,
+                };
+                let out = stage.process(s.seq as f64 * *period, &estimate, friction);
                 s.reference_velocity = out.reference.velocity;
                 s.output = out.output;
             }

@@ -80,6 +80,7 @@ fn cycles(n: usize) -> Result<Vec<Cycle>> {
                     stage_time_ns: t + 25_000,
                     compensation: r.friction_comp,
                     blended_velocity: r.omega_ref,
+                    load_feedforward: r.load_feedforward,
                 },
                 position: PositionSample {
                     sensor_seq: seq,

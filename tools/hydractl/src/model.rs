@@ -136,7 +136,7 @@ pub fn run(command: ModelCommand) -> Result<()> {
 fn compensate(args: CompensateArgs) -> Result<()> {
     let model = load_model(&args.model)?;
     let base = hydractl_config::Config::load_or_default(args.config.as_deref())?;
-    let tuned = hydractl_config::compensate::compensate(&base, &model.effects()?);
+    let tuned = hydractl_config::compensate::compensate(&base, &model.plant, &model.effects()?);
     let source = args
         .config
         .as_ref()
