@@ -56,7 +56,30 @@ fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
         ),
     )
     .expect("config");
-    let summary = run_config_for(&scope, &dir, &unchanged, "45");
+    let summary_path = dir.join("summary.json");
+    let mut run = start_run(
+        &scope,
+        &[
+            "--config",
+            unchanged.to_str().expect("path"),
+            "--duration",
+            "45",
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+    );
+    // `hydractl status` shows the shadow's fit while the run goes on.
+    std::thread::sleep(std::time::Duration::from_secs(20));
+    let status = status(&scope);
+    assert_eq!(process(&status, "shadow")["healthy"], true, "{status}");
+    let watching = &status["shadow"];
+    assert!(watching["windows"].as_u64().expect("windows") >= 5, "{status}");
+    assert!(
+        watching["fit_percent"]["theta"].as_f64().expect("fit") > 85.0,
+        "{status}"
+    );
+    assert!(wait_exit(&mut run.0, std::time::Duration::from_secs(90)).success());
+    let summary = read_json(&summary_path);
     assert_eq!(
         summary["model_drift"],
         serde_json::json!([]),

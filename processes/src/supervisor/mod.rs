@@ -589,7 +589,7 @@ impl Supervisor {
                 *status_seq,
                 children,
                 seat,
-                recorder,
+                recorder.into_iter().chain(shadow.as_ref()),
                 own_pid,
                 now,
                 hung_after,

@@ -51,11 +51,11 @@ impl LoopMemory {
 }
 
 #[allow(clippy::too_many_arguments)]
-pub(super) fn status_of(
+pub(super) fn status_of<'a>(
     seq: u64,
     children: &[Supervised],
     seat: &Seat,
-    recorder: Option<&Supervised>,
+    off_loop: impl Iterator<Item = &'a Supervised>,
     own_pid: u32,
     now: Instant,
     hung_after: Duration,
@@ -98,8 +98,9 @@ pub(super) fn status_of(
             memory_locked,
         }
     });
-    // The recorder has no output of its own on the loop: healthy while it runs.
-    let recorder = recorder.map(|r| ProcessStatus {
+    // The recorder and the shadow have no output on the loop: healthy
+    // while they run.
+    let off_loop = off_loop.map(|r| ProcessStatus {
         name: fixed_name(r.name),
         variant: [0; 16],
         pid: r.pid().unwrap_or(0),
@@ -122,7 +123,7 @@ pub(super) fn status_of(
         entries
             .into_iter()
             .chain(spare)
-            .chain(recorder)
+            .chain(off_loop)
             .chain(std::iter::once(supervisor)),
     ) {
         *slot = entry;

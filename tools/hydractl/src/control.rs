@@ -6,7 +6,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, CommandClient, Reader, RunScope, PREFIX_ENV};
 use hydractl_samples::{
-    code, name_str, service, source, RecorderStatus, SupervisorReply, SupervisorRequest, SupervisorStatus, UNKNOWN,
+    code, name_str, service, source, RecorderStatus, ShadowSample, SupervisorReply, SupervisorRequest,
+    SupervisorStatus, UNKNOWN,
 };
 use serde::Serialize;
 
@@ -128,6 +129,47 @@ struct StatusView {
     /// The run's recording, when it records.
     #[serde(skip_serializing_if = "Option::is_none")]
     recording: Option<RecordingView>,
+    /// The shadow model's last window, when one watches the machine.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    shadow: Option<ShadowView>,
+}
+
+/// The shadow model's last word.
+#[derive(Serialize)]
+struct ShadowView {
+    /// Windows compared so far.
+    windows: u64,
+    window_s: f64,
+    /// Each output's fit over the last window, percent.
+    fit_percent: std::collections::BTreeMap<&'static str, f64>,
+    drift_alarms: u32,
+    /// A drift's diagnosis is running.
+    diagnosing: bool,
+}
+
+/// The shadow's newest window, when the run has a shadow.
+fn shadow_view(shadow: &Reader<ShadowSample>, watched: bool) -> Result<Option<ShadowView>> {
+    if !watched {
+        return Ok(None);
+    }
+    // It publishes a window every `every_s` (1 s by default).
+    let deadline = Instant::now() + Duration::from_millis(1500);
+    let sample = loop {
+        if let Some(s) = shadow.latest()? {
+            break s;
+        }
+        if Instant::now() > deadline {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    Ok(Some(ShadowView {
+        windows: sample.seq + 1,
+        window_s: sample.window_s,
+        fit_percent: crate::run::fit_percent(&sample),
+        drift_alarms: sample.drift_alarms,
+        diagnosing: sample.diagnosing != 0,
+    }))
 }
 
 /// The recorder's last word.
@@ -193,6 +235,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
     };
     let reader: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 1)?;
     let recorder: Reader<RecorderStatus> = Reader::open(&bus, service::RECORDER_STATUS, 1)?;
+    let shadow: Reader<ShadowSample> = Reader::open(&bus, service::SHADOW, 1)?;
     let deadline = Instant::now() + Duration::from_secs(2);
     let status = loop {
         if let Some(s) = reader.latest()? {
@@ -226,6 +269,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
             &recorder,
             status.processes.iter().any(|p| name_str(&p.name) == "recorder"),
         )?,
+        shadow: shadow_view(&shadow, status.processes.iter().any(|p| name_str(&p.name) == "shadow"))?,
     };
     if args.json {
         return crate::emit(&(serde_json::to_string_pretty(&view)? + "\n"));
@@ -276,6 +320,21 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 n.samples, n.for_last_s
             );
         }
+    }
+    if let Some(s) = &view.shadow {
+        let fits: Vec<String> = s.fit_percent.iter().map(|(o, f)| format!("{o} {f:.1} %")).collect();
+        text += &format!(
+            "shadow model: fit {} over the last {:.0} s ({} windows); {} drift alarm(s){}\n",
+            if fits.is_empty() {
+                "-".to_owned()
+            } else {
+                fits.join(", ")
+            },
+            s.window_s,
+            s.windows,
+            s.drift_alarms,
+            if s.diagnosing { ", diagnosing one" } else { "" }
+        );
     }
     crate::emit(&text)
 }

@@ -575,6 +575,14 @@ impl Taps {
 }
 
 /// One figure for the shadow's fit: its worst output's.
+/// The window's fit per output, percent, where measured.
+pub(crate) fn fit_percent(s: &hydractl_samples::ShadowSample) -> BTreeMap<&'static str, f64> {
+    [("theta", s.fit_theta), ("p_a", s.fit_p_a), ("p_b", s.fit_p_b)]
+        .into_iter()
+        .filter(|(_, v)| v.is_finite())
+        .collect()
+}
+
 pub(crate) fn shadow_fit(s: &hydractl_samples::ShadowSample) -> f64 {
     [s.fit_theta, s.fit_p_a, s.fit_p_b]
         .into_iter()
@@ -956,14 +964,7 @@ fn watch(
         shadow: config.shadow.model.as_ref().map(|model| ShadowSummary {
             model: model.display().to_string(),
             windows: shadow_windows,
-            fit_percent: shadow_last
-                .map(|s| {
-                    [("theta", s.fit_theta), ("p_a", s.fit_p_a), ("p_b", s.fit_p_b)]
-                        .into_iter()
-                        .filter(|(_, v)| v.is_finite())
-                        .collect()
-                })
-                .unwrap_or_default(),
+            fit_percent: shadow_last.map(|s| fit_percent(&s)).unwrap_or_default(),
             residual_pressures_pa: shadow_last.map(|s| s.residual_pressures).filter(|v| v.is_finite()),
             residual_angle_rad: shadow_last.map(|s| s.residual_angle).filter(|v| v.is_finite()),
             row_gaps: shadow_last.map_or(0, |s| s.row_gaps),
