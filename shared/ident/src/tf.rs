@@ -32,6 +32,8 @@ pub enum IdentError {
     SampleTime(f64),
     #[error("the input does not excite the system (it is constant)")]
     NoExcitation,
+    #[error("sample {index} of the {signal} is not a number: the fit needs every sample")]
+    NotFinite { signal: &'static str, index: usize },
     #[error("the fit did not produce a usable model: {0}")]
     Failed(String),
     #[error(transparent)]
@@ -109,6 +111,12 @@ pub fn identify_tf(u: &[f64], y: &[f64], ts: f64, options: TfOptions) -> Result<
     let needed = 20 * (poles + zeros + 1);
     if u.len() < needed {
         return Err(IdentError::TooShort { needed, have: u.len() });
+    }
+    // A NaN would make the SVD below iterate for ever.
+    for (signal, values) in [("input", u), ("output", y)] {
+        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+            return Err(IdentError::NotFinite { signal, index });
+        }
     }
     if u.iter().all(|&v| v == u[0]) {
         return Err(IdentError::NoExcitation);
@@ -600,4 +608,33 @@ fn refine(initial: &TransferFunction, u: &[f64], y: &[f64], ts: f64, method: Met
         noise: params.noise(&theta),
         iterations,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sample_that_is_not_a_number_is_named_not_iterated_on() {
+        let u: Vec<f64> = (0..400).map(|k| (k as f64 * 0.05).sin()).collect();
+        let mut y = u.clone();
+        y[0] = f64::NAN;
+        let options = TfOptions {
+            poles: 2,
+            zeros: 0,
+            method: Method::Oe,
+            estimation_fraction: 0.7,
+        };
+        let err = identify_tf(&u, &y, 1e-3, options).expect_err("a NaN");
+        assert!(
+            matches!(
+                err,
+                IdentError::NotFinite {
+                    signal: "output",
+                    index: 0
+                }
+            ),
+            "{err}"
+        );
+    }
 }

@@ -320,6 +320,26 @@ pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
             .collect();
         // A stage the run did not have is not a column of its data.
         columns.retain(|(_, c)| c.iter().any(|v| v.is_finite()));
+        // A stage whose first sample came after the first reading leaves
+        // the rows before it without a value (later ones carry the last):
+        // the data starts where every required column has one.
+        let required_columns: Vec<&Vec<f64>> = columns
+            .iter()
+            .filter(|(name, _)| required.contains(name))
+            .map(|(_, c)| c)
+            .collect();
+        let first = (0..values.len())
+            .find(|&k| required_columns.iter().all(|c| c[k].is_finite()))
+            .unwrap_or(0);
+        if first > 0 {
+            tracing::info!(
+                "{}: the first {first} reading(s) precede a required column's first value; the data starts after them",
+                path.display()
+            );
+            for (_, column) in &mut columns {
+                column.drain(..first);
+            }
+        }
         let data = Dataset::from_columns(&path.display().to_string(), columns);
         for name in required {
             data.column(name)?;
