@@ -9,8 +9,8 @@ use std::thread::JoinHandle;
 use anyhow::{Context, Result};
 use hydractl_config::ShadowConfig;
 use hydractl_ident::greybox::{
-    diagnose, Assessment, Diagnosis, DriftAlarm, DriftTest, FitOptions, Model, ModelError, Part, Shadow, Signals,
-    REGIMES,
+    diagnose, moved_effect, Assessment, Diagnosis, DriftAlarm, DriftTest, FitOptions, Model, ModelError, Part, Shadow,
+    Signals, REGIMES,
 };
 use hydractl_ident::Dataset;
 use hydractl_plant::EffectKind;
@@ -317,25 +317,35 @@ impl ShadowWatch {
         event.params = [f64::NAN; 4];
         match diagnosis {
             Ok(diagnosis) => {
-                let named = diagnosis.candidates.first().filter(|c| c.significant);
+                // An effect the model lacks, else one it has whose size moved.
+                let named = match diagnosis.candidates.first().filter(|c| c.significant) {
+                    Some(c) => Some((
+                        c.effect.clone(),
+                        c.params.clone(),
+                        diagnosis.fitted.get(&c.effect).cloned(),
+                        c.evidence.clone(),
+                    )),
+                    None => moved_effect(self.shadow.model(), &diagnosis).map(|(effect, params)| {
+                        let evidence = format!(
+                            "the model's own {effect} refitted on the drifted data moved beyond a quarter \
+                             and three standard deviations"
+                        );
+                        (effect, params, Some(diagnosis.baseline_model.clone()), evidence)
+                    }),
+                };
                 match named {
-                    Some(candidate) => {
+                    Some((effect, params, model, evidence)) => {
                         event.stage = drift::NAMED;
-                        event.effect = fixed_name(&candidate.effect);
-                        let keys = EffectKind::from_name(&candidate.effect)
+                        event.effect = fixed_name(&effect);
+                        let keys = EffectKind::from_name(&effect)
                             .map(|k| k.params().iter().map(|p| p.key).collect::<Vec<_>>())
                             .unwrap_or_default();
                         for (slot, key) in event.params.iter_mut().zip(keys) {
-                            *slot = candidate.params.get(key).copied().unwrap_or(f64::NAN);
+                            *slot = params.get(key).copied().unwrap_or(f64::NAN);
                         }
-                        tracing::warn!(
-                            effect = %candidate.effect,
-                            params = ?candidate.params,
-                            evidence = %candidate.evidence,
-                            "the machine drifted: named"
-                        );
-                        match diagnosis.fitted.get(&candidate.effect) {
-                            Some(model) => self.shadow.adopt(model.clone())?,
+                        tracing::warn!(effect = %effect, params = ?params, evidence = %evidence, "the machine drifted: named");
+                        match model {
+                            Some(model) => self.shadow.adopt(model)?,
                             None => self.shadow.restart(),
                         }
                     }

@@ -322,6 +322,9 @@ mod tests {
         let model = config.shadow.model.as_deref().expect("a shadow model");
         assert!(model.is_file(), "resolved beside the config: {}", model.display());
         assert_eq!(config.machine.and_then(|m| m.drift).map(|d| d.to), Some(0.06));
+        let cold = Config::load(&path.with_file_name("machine-cold.toml")).expect("config/machine-cold.toml");
+        let drift = cold.machine.and_then(|m| m.drift).expect("a drift");
+        assert_eq!((drift.effect.as_str(), drift.to), ("coulomb_friction", 80.0));
 
         let dir = std::env::temp_dir().join(format!("hydractl-shadow-config-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("dir");

@@ -1,13 +1,15 @@
 //! The shadow's drift test on closed-loop data: the model of the simulated
 //! plant, judged against its own validation spread, raises nothing on a
 //! run it was not calibrated on, alarms on a valve whose dead-zone opened,
-//! and an adopted model is judged only after calibrating on live data.
+//! an adopted model is judged only after calibrating on live data, and a
+//! drift of an effect the model already has is named by its refit.
 
 use std::collections::BTreeMap;
 
 use hydractl_config::Config;
 use hydractl_ident::greybox::{
-    validation_spread, DriftTest, HistoryStep, Model, Shadow, Signals, CALIBRATION_SEGMENTS,
+    diagnose, moved_effect, validation_spread, DriftTest, FitOptions, HistoryStep, Model, Shadow, Signals,
+    CALIBRATION_SEGMENTS,
 };
 use hydractl_ident::Dataset;
 use hydractl_plant::effects::Effects;
@@ -112,4 +114,28 @@ fn an_adopted_model_is_judged_only_after_calibrating_on_live_data() {
     let at = calibrated_at.expect("calibrated");
     assert!((at - expected).abs() <= 1.01, "calibrated at {at} s, not {expected} s");
     assert!(alarms.is_empty(), "alarms at {alarms:?} s");
+}
+
+/// The model's own Coulomb friction on data whose friction doubled: no
+/// effect the model lacks explains it, the refit of its own does.
+#[test]
+fn friction_that_rose_is_named_as_the_models_own_effect_moved() {
+    let config = Config::default_sim().expect("built-in config");
+    let rows = closed_loop(Some("coulomb_friction:coulomb=60,breakaway=60"), 13, 20.0);
+    let signals = signals(&rows);
+    let with_friction = |level: f64| {
+        let effect = Effect::parse(&format!("coulomb_friction:coulomb={level},breakaway={level}")).expect("effect");
+        let mut effects = Effects::none();
+        effects.insert(effect);
+        Model::new(config.plant, effects)
+    };
+    let cold = with_friction(30.0);
+    let diagnosis = diagnose(&signals, Some(&cold), FitOptions::default()).expect("diagnoses");
+    let (effect, params) = moved_effect(&cold, &diagnosis).expect("the friction moved");
+    assert_eq!(effect, "coulomb_friction");
+    let coulomb = params["coulomb"];
+    assert!((coulomb - 60.0).abs() <= 0.25 * 60.0, "coulomb refitted to {coulomb}");
+    let true_model = with_friction(60.0);
+    let diagnosis = diagnose(&signals, Some(&true_model), FitOptions::default()).expect("diagnoses");
+    assert_eq!(moved_effect(&true_model, &diagnosis), None, "nothing moved");
 }

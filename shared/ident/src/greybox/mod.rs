@@ -28,7 +28,8 @@ pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, Output
 pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
 pub use shadow::{
-    segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow, CALIBRATION_SEGMENTS,
+    moved_effect, segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow,
+    CALIBRATION_SEGMENTS,
 };
 pub use signals::{Signals, COLUMNS, REQUIRED_COLUMNS};
 

@@ -20,7 +20,8 @@ use hydractl_plant::PlantParams;
 use serde::{Deserialize, Serialize};
 
 use super::compare::{compare, residuals, Comparison};
-use super::{predict, segments, Model, ModelError, Part, Prediction, Signals};
+use super::{predict, segments, Diagnosis, Model, ModelError, Part, Prediction, Signals};
+use hydractl_plant::EffectKind;
 
 /// How one part's segment residual spread on the model's validation data.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -300,6 +301,44 @@ impl Shadow {
     pub fn restart(&mut self) {
         self.cusum.clear();
     }
+}
+
+/// How far an effect's main parameter must move, relative to its value,
+/// to be called a change of the machine and not the scatter of a refit.
+const MOVED_RELATIVE: f64 = 0.25;
+/// …and in standard deviations of its refit on the drifted data.
+const MOVED_STDS: f64 = 3.0;
+
+/// An effect the model already has whose main parameter the drifted data
+/// moved (friction rising in the cold, a dead-zone wearing wider): the
+/// diagnosis tries only effects the model lacks, but refits the model's
+/// own on the same data first. The one that moved most, relative to its
+/// value, by more than a quarter and three standard deviations; with its
+/// refitted parameters.
+pub fn moved_effect(model: &Model, diagnosis: &Diagnosis) -> Option<(String, BTreeMap<String, f64>)> {
+    let refitted = &diagnosis.baseline_model.effects.0;
+    model
+        .effects
+        .0
+        .iter()
+        .filter_map(|(name, params)| {
+            let main = EffectKind::from_name(name).ok()?.main_param()?;
+            let before = *params.get(main)?;
+            let after_params = refitted.get(name)?;
+            let after = *after_params.get(main)?;
+            let moved = (after - before).abs();
+            let std = diagnosis
+                .baseline
+                .uncertainty
+                .std
+                .get(&format!("{name}.{main}"))
+                .copied();
+            let relative = moved / before.abs().max(f64::MIN_POSITIVE);
+            (relative > MOVED_RELATIVE && std.is_none_or(|s| moved > MOVED_STDS * s))
+                .then(|| (relative, name.clone(), after_params.clone()))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, name, params)| (name, params))
 }
 
 /// The validation spread the model's last history step kept, by part.
