@@ -211,6 +211,21 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
         }
         Ok(newest)
     }
+
+    /// The newest sample, waiting for one up to `within` (polling every
+    /// 10 ms): for a tool that asks a running stack once, never for a loop.
+    pub fn latest_within(&self, within: Duration) -> Result<Option<T>, BusError> {
+        let deadline = std::time::Instant::now() + within;
+        loop {
+            if let Some(sample) = self.latest()? {
+                return Ok(Some(sample));
+            }
+            if std::time::Instant::now() > deadline {
+                return Ok(None);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
 }
 
 /// Receives samples of one service and wakes its process: a [`Reader`] with

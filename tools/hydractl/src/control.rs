@@ -153,15 +153,8 @@ fn shadow_view(shadow: &Reader<ShadowSample>, watched: bool) -> Result<Option<Sh
         return Ok(None);
     }
     // It publishes a window every `every_s` (1 s by default).
-    let deadline = Instant::now() + Duration::from_millis(1500);
-    let sample = loop {
-        if let Some(s) = shadow.latest()? {
-            break s;
-        }
-        if Instant::now() > deadline {
-            return Ok(None);
-        }
-        std::thread::sleep(Duration::from_millis(10));
+    let Some(sample) = shadow.latest_within(Duration::from_millis(1500))? else {
+        return Ok(None);
     };
     Ok(Some(ShadowView {
         windows: sample.seq + 1,
@@ -199,15 +192,8 @@ fn recording_view(recorder: &Reader<RecorderStatus>, records: bool) -> Result<Op
         return Ok(None);
     }
     // It says itself every 100 ms.
-    let deadline = Instant::now() + Duration::from_millis(300);
-    let status = loop {
-        if let Some(s) = recorder.latest()? {
-            break s;
-        }
-        if Instant::now() > deadline {
-            return Ok(None);
-        }
-        std::thread::sleep(Duration::from_millis(10));
+    let Some(status) = recorder.latest_within(Duration::from_millis(300))? else {
+        return Ok(None);
     };
     Ok(Some(RecordingView {
         messages: status.messages,
@@ -236,15 +222,8 @@ pub fn status(args: StatusArgs) -> Result<()> {
     let reader: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 1)?;
     let recorder: Reader<RecorderStatus> = Reader::open(&bus, service::RECORDER_STATUS, 1)?;
     let shadow: Reader<ShadowSample> = Reader::open(&bus, service::SHADOW, 1)?;
-    let deadline = Instant::now() + Duration::from_secs(2);
-    let status = loop {
-        if let Some(s) = reader.latest()? {
-            break s;
-        }
-        if Instant::now() > deadline {
-            bail!("the supervisor published no status within 2 s");
-        }
-        std::thread::sleep(Duration::from_millis(10));
+    let Some(status) = reader.latest_within(Duration::from_secs(2))? else {
+        bail!("the supervisor published no status within 2 s");
     };
     let view = StatusView {
         running: true,
