@@ -199,6 +199,8 @@ pub struct ShadowWatch {
     assessed_at: u64,
     alarms: u32,
     state: DriftState,
+    /// `[shadow] learned`: where an adopted model is written.
+    learned: Option<std::path::PathBuf>,
 }
 
 impl ShadowWatch {
@@ -227,6 +229,7 @@ impl ShadowWatch {
             assessed_at: 0,
             alarms: 0,
             state: DriftState::Watching,
+            learned: config.learned.clone(),
         })
     }
 
@@ -345,7 +348,18 @@ impl ShadowWatch {
                         }
                         tracing::warn!(effect = %effect, params = ?params, evidence = %evidence, "the machine drifted: named");
                         match model {
-                            Some(model) => self.shadow.adopt(model)?,
+                            Some(model) => {
+                                if let Some(path) = &self.learned {
+                                    // Off the loop: the shadow's own thread.
+                                    match model.save(path) {
+                                        Ok(()) => {
+                                            tracing::info!(file = %path.display(), "the learned model is written")
+                                        }
+                                        Err(e) => tracing::warn!("the learned model is not written: {e}"),
+                                    }
+                                }
+                                self.shadow.adopt(model)?;
+                            }
                             None => self.shadow.restart(),
                         }
                     }

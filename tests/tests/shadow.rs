@@ -18,7 +18,19 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
     let _turn = serial();
     let scope = unique_scope("drift");
     let dir = scratch_dir("drift");
-    let summary = run_config_for(&scope, &dir, &config("machine-drift.toml"), "50");
+    // The drift of machine-drift.toml, the learned model written out.
+    let learned = dir.join("learned.toml");
+    let drifting = dir.join("drifting.toml");
+    std::fs::write(
+        &drifting,
+        format!(
+            "base = {:?}\n[shadow]\nlearned = {:?}\n",
+            config("machine-drift.toml"),
+            learned
+        ),
+    )
+    .expect("config");
+    let summary = run_config_for(&scope, &dir, &drifting, "50");
     let drifts = summary["model_drift"].as_array().expect("model_drift");
     let shadow = &summary["shadow"];
     assert_eq!(drifts.len(), 1, "one drift, named once: {drifts:?}, shadow {shadow}");
@@ -31,6 +43,11 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
     assert_eq!(drift["effect"], "deadzone", "{drift}");
     let width = drift["params"]["width"].as_f64().expect("width");
     assert!((width - 0.06).abs() <= 0.25 * 0.06, "width {width}: {drift}");
+    // What the shadow learned, for `hydractl model compensate`.
+    let text = std::fs::read_to_string(&learned).expect("the learned model is written");
+    let model: toml::Table = toml::from_str(&text).expect("a model file");
+    let learned_width = model["effects"]["deadzone"]["width"].as_float().expect("its dead-zone");
+    assert!((learned_width - width).abs() < 1e-9, "{learned_width} against {width}");
     assert!(shadow["windows"].as_u64().expect("windows") >= 30, "{shadow}");
     assert!(
         shadow["fit_percent"]["theta"].as_f64().expect("theta's fit") > 90.0,

@@ -51,6 +51,10 @@ pub struct ShadowConfig {
     /// The model file (`hydractl model fit`/`add`), relative to this
     /// config's folder. None: no shadow process.
     pub model: Option<std::path::PathBuf>,
+    /// Where the model the shadow goes on with after a named drift is
+    /// written, each time, for `hydractl model compensate`; relative to
+    /// this config's folder. None: kept in the process only.
+    pub learned: Option<std::path::PathBuf>,
     /// The sliding window the model is compared over, s.
     pub window_s: f64,
     /// How often it is compared, s (a multiple of the 0.5 s segment).
@@ -64,6 +68,7 @@ impl Default for ShadowConfig {
     fn default() -> Self {
         Self {
             model: None,
+            learned: None,
             window_s: 5.0,
             every_s: 1.0,
             diagnose_s: 15.0,

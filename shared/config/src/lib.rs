@@ -177,8 +177,11 @@ impl Config {
 
     /// Paths in the file are the file's: relative to its folder.
     fn resolved_from(mut self, path: &Path) -> Self {
-        if let Some(model) = self.shadow.model.as_mut().filter(|m| m.is_relative()) {
-            *model = path.parent().unwrap_or(Path::new(".")).join(&*model);
+        let folder = path.parent().unwrap_or(Path::new("."));
+        for file in [&mut self.shadow.model, &mut self.shadow.learned] {
+            if let Some(file) = file.as_mut().filter(|m| m.is_relative()) {
+                *file = folder.join(&*file);
+            }
         }
         self
     }
@@ -189,6 +192,18 @@ impl Config {
             message,
         };
         let mut table: toml::Table = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        // A file's paths are its own, also when another file takes it as
+        // its base from another folder.
+        if let Some(shadow) = table.get_mut("shadow").and_then(toml::Value::as_table_mut) {
+            for key in ["model", "learned"] {
+                if let Some(toml::Value::String(file)) = shadow.get_mut(key) {
+                    if Path::new(file.as_str()).is_relative() {
+                        let resolved = path.parent().unwrap_or(Path::new(".")).join(&*file);
+                        *file = resolved.display().to_string();
+                    }
+                }
+            }
+        }
         let Some(base) = table.remove("base") else {
             return Ok(table);
         };
@@ -328,6 +343,16 @@ mod tests {
 
         let dir = std::env::temp_dir().join(format!("hydractl-shadow-config-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("dir");
+        // Taken as a base from another folder, its model is still its own.
+        let elsewhere = dir.join("elsewhere.toml");
+        let text = format!(
+            "base = {:?}\n[shadow]\nlearned = 'learned.toml'\n",
+            path.display().to_string()
+        );
+        std::fs::write(&elsewhere, text).expect("write");
+        let shadow = Config::load(&elsewhere).expect("elsewhere").shadow;
+        assert!(shadow.model.as_deref().is_some_and(Path::is_file), "{:?}", shadow.model);
+        assert_eq!(shadow.learned, Some(dir.join("learned.toml")));
         let bad = dir.join("bad.toml");
         let err = |text: &str| {
             std::fs::write(&bad, format!("base = {:?}\n{text}", path.display().to_string())).expect("write");
