@@ -65,6 +65,9 @@ pub struct Supervised {
     pub pids: Vec<u32>,
     pub restarts: u32,
     started_at: Instant,
+    /// When it was last spawned, on the samples' clock: an answer stamped
+    /// before it came from the process it replaced.
+    pub spawned_ns: u64,
     backoff: Duration,
     restart_at: Option<Instant>,
     /// Last time its output advanced.
@@ -97,6 +100,7 @@ impl Supervised {
             pids: Vec::new(),
             restarts: 0,
             started_at: now,
+            spawned_ns: 0,
             backoff: Duration::ZERO,
             restart_at: None,
             last_output: now,
@@ -148,6 +152,7 @@ impl Supervised {
         self.child = Some(child);
         let now = Instant::now();
         self.started_at = now;
+        self.spawned_ns = hydractl_bus::clock::now_ns();
         self.last_output = now;
         self.restart_at = None;
         Ok(())

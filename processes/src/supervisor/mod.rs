@@ -241,8 +241,12 @@ impl Supervisor {
                 children[i].last_output = now;
                 children[i].last_seq = Some(answer.seq);
                 last_answer_ns[i] = answer.time_ns;
-                // Back after a fault: the fault's account is complete.
-                if let Some(fault) = faults[i].take() {
+                // Back after a fault: the fault's account is complete. An
+                // answer the killed process published before it died, read
+                // only now, is not its successor's (it closed a limit
+                // cycle's 500 ms wait as 11 ms).
+                let from_successor = answer.time_ns >= children[i].spawned_ns;
+                if let Some(fault) = faults[i].take_if(|_| from_successor) {
                     swaps.publish_fault(children[i].name, fault, Some(now))?;
                 }
             }
