@@ -206,7 +206,22 @@ pub struct Observer {
 
 impl Observer {
     pub fn open(scope: &RunScope) -> Self {
-        let bus = Bus::open(scope, "observer").expect("node");
+        // A run starting at this moment clears its scope's stale files
+        // (none of its nodes alive yet) and can take the node's folder
+        // from under its creation: iceoryx2 then fails with InternalError.
+        // Nothing else opens a node there while a run starts.
+        let mut attempts = 0;
+        let bus = loop {
+            match Bus::open(scope, "observer") {
+                Ok(bus) => break bus,
+                Err(e) if attempts < 20 => {
+                    attempts += 1;
+                    eprintln!("observer's node, attempt {attempts}: {e}");
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                Err(e) => panic!("node: {e:?}"),
+            }
+        };
         Self {
             status: Reader::open(&bus, service::SUPERVISOR_STATUS, 4).expect("status"),
             valve: Reader::open(&bus, service::VALVE, 256).expect("valve"),
