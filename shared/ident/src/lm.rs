@@ -2,6 +2,7 @@
 //! box bounds: the one optimizer behind the grey-box fits.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 /// Where to stop and how to differentiate.
 #[derive(Debug, Clone, Copy)]
@@ -31,6 +32,8 @@ pub struct LmResult {
     pub params: Vec<f64>,
     /// Sum of squared residuals at `params`.
     pub cost: f64,
+    /// The residuals at `params`.
+    pub residuals: Vec<f64>,
     pub iterations: usize,
     /// Whether it stopped for want of progress, not of iterations.
     pub converged: bool,
@@ -50,7 +53,7 @@ pub fn minimize(
     initial: &[f64],
     lower: &[f64],
     upper: &[f64],
-    residuals: impl Fn(&[f64]) -> Option<Vec<f64>>,
+    residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync,
     options: LmOptions,
 ) -> Option<LmResult> {
     let p = initial.len();
@@ -70,22 +73,27 @@ pub fn minimize(
     let mut normal_matrix = DMatrix::zeros(p, p);
     while iterations < options.max_iterations && p > 0 {
         iterations += 1;
+        // The columns are independent simulations: in parallel, which also
+        // lends a core to the other fits' threads as they finish.
+        let columns: Vec<Option<(f64, Vec<f64>)>> = (0..p)
+            .into_par_iter()
+            .map(|j| {
+                let mut shifted = theta.clone();
+                // Step inward at an upper bound, so the difference stays feasible.
+                let h = if theta[j] + options.difference_step > upper[j] {
+                    -options.difference_step
+                } else {
+                    options.difference_step
+                };
+                shifted[j] += h;
+                residuals(&shifted).filter(|r| r.len() == current.len()).map(|r| (h, r))
+            })
+            .collect();
         let mut jacobian = DMatrix::zeros(current.len(), p);
-        for j in 0..p {
-            let mut shifted = theta.clone();
-            // Step inward at an upper bound, so the difference stays feasible.
-            let h = if theta[j] + options.difference_step > upper[j] {
-                -options.difference_step
-            } else {
-                options.difference_step
-            };
-            shifted[j] += h;
-            let Some(r) = residuals(&shifted) else {
+        for (j, column) in columns.iter().enumerate() {
+            let Some((h, r)) = column else {
                 continue;
             };
-            if r.len() != current.len() {
-                continue;
-            }
             for (i, (ri, ci)) in r.iter().zip(&current).enumerate() {
                 jacobian[(i, j)] = (ri - ci) / h;
             }
@@ -134,6 +142,7 @@ pub fn minimize(
     Some(LmResult {
         params: theta,
         cost,
+        residuals: current,
         iterations,
         converged,
         normal_matrix,

@@ -61,11 +61,12 @@ pub fn tune_pid_iae(model: &TransferFunction, starts: &[[f64; 3]], tuning: IaeTu
     if starts.is_empty() {
         return Err(IdentError::Failed("no starting gains".into()));
     }
-    let mut simulation = Loop::new(model, tuning)?;
-    let cell = std::cell::RefCell::new(&mut simulation);
+    // One simulation's buffers for every evaluation; the optimizer may ask
+    // from several threads, which then take turns.
+    let simulation = std::sync::Mutex::new(Loop::new(model, tuning)?);
     let residuals = |log_gains: &[f64]| -> Option<Vec<f64>> {
         let gains = [log_gains[0].exp(), log_gains[1].exp(), log_gains[2].exp()];
-        let errors = step_errors(&mut cell.borrow_mut(), gains)?;
+        let errors = step_errors(&mut *simulation.lock().ok()?, gains)?;
         Some(errors.iter().map(|e| (e * tuning.ts).sqrt()).collect())
     };
     let mut best: Option<TunedPid> = None;

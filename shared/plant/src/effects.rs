@@ -24,6 +24,7 @@ pub struct Deadzone {
 
 impl Deadzone {
     /// The effective opening: the spool travel beyond the overlap.
+    #[inline]
     pub fn opening(&self, spool: f64) -> f64 {
         let from_centre = spool - self.offset;
         if from_centre > self.width {
@@ -44,6 +45,7 @@ pub struct Saturation {
 }
 
 impl Saturation {
+    #[inline]
     pub fn clamp(&self, spool: f64) -> f64 {
         spool.clamp(-self.limit, self.limit)
     }
@@ -64,6 +66,7 @@ pub struct AsymmetricGain {
 }
 
 impl AsymmetricGain {
+    #[inline]
     pub fn gain_factor(&self, opening: f64) -> f64 {
         if opening < 0.0 {
             self.ratio
@@ -87,6 +90,7 @@ impl OrificeFlow {
     const LAMINAR_FRACTION: f64 = 0.01;
 
     /// √(drop / nominal_drop), regularized near zero and zero for a negative drop.
+    #[inline]
     pub fn drop_factor(drop: f64, nominal_drop: f64) -> f64 {
         let r = (drop / nominal_drop).max(0.0);
         if r < Self::LAMINAR_FRACTION {
@@ -110,8 +114,14 @@ pub struct CoulombFriction {
 
 impl CoulombFriction {
     /// Magnitude of the sliding friction at speed `speed` (≥ 0).
+    #[inline]
     pub fn sliding_level(&self, speed: f64) -> f64 {
         let v = speed / self.stribeck_velocity;
+        // Beyond six Stribeck velocities the excess is below 1e-15 of it:
+        // not worth an exp on every step of a simulation.
+        if v * v > 36.0 {
+            return self.coulomb;
+        }
         self.coulomb + (self.breakaway - self.coulomb) * (-v * v).exp()
     }
 }
@@ -128,6 +138,7 @@ pub struct GravityLoad {
 
 impl GravityLoad {
     /// The torque the load applies against positive rotation.
+    #[inline]
     pub fn torque(&self, angle: f64) -> f64 {
         self.amplitude * (angle - self.offset).sin()
     }
@@ -143,6 +154,7 @@ pub struct Backlash {
 
 impl Backlash {
     /// The follower's new position given the driver's, from the previous one.
+    #[inline]
     pub fn follow(&self, driver: f64, follower: f64) -> f64 {
         let half = 0.5 * self.width;
         if driver - follower > half {
@@ -163,6 +175,7 @@ pub struct Quantization {
 }
 
 impl Quantization {
+    #[inline]
     pub fn quantize(&self, angle: f64) -> f64 {
         let counts = angle / self.step;
         // `f64::round` is a library call on the baseline x86-64 target (its
@@ -193,6 +206,7 @@ pub struct LoadFlexibility {
 
 impl LoadFlexibility {
     /// The coupling torque on the load: positive when the actuator leads.
+    #[inline]
     pub fn coupling_torque(&self, twist: f64, twist_rate: f64) -> f64 {
         self.stiffness * twist + self.damping * twist_rate
     }

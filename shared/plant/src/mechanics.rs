@@ -17,6 +17,7 @@ pub const LOAD_VELOCITY: usize = 3;
 
 /// Everything acting on the actuator's rotor except Coulomb friction, N·m,
 /// given the hydraulic torque D (p_a − p_b).
+#[inline]
 pub fn net_torque(params: &PlantParams, effects: &Effects, motion: &Motion, hydraulic_torque: f64) -> f64 {
     let viscous = params.viscous_friction * motion[VELOCITY];
     let load = match effects.load_flexibility {
@@ -31,6 +32,7 @@ pub fn net_torque(params: &PlantParams, effects: &Effects, motion: &Motion, hydr
 
 /// The motion's rates; `direction` is the friction direction frozen for the
 /// step (+1 or −1 while sliding, 0 while stuck).
+#[inline]
 pub fn motion_rates(
     params: &PlantParams,
     effects: &Effects,
@@ -72,6 +74,7 @@ pub fn motion_rates(
 
 /// Decides breakaway before a step: the friction direction for the step and
 /// whether the actuator stays stuck. Without Coulomb friction: (0, false).
+#[inline]
 pub fn friction_direction(
     params: &PlantParams,
     effects: &Effects,
@@ -97,6 +100,7 @@ pub fn friction_direction(
 /// `direction`: holds a stuck actuator still, and stops one whose velocity
 /// reached or crossed zero, sticking if friction can hold the net torque.
 /// Returns whether the actuator is stuck now.
+#[inline]
 pub fn settle_friction(
     params: &PlantParams,
     effects: &Effects,

@@ -2,6 +2,7 @@
 //! segment, part by part, with a robust (Huber) loss so that the moments a
 //! pressure sits at tank or supply do not steer the fit.
 
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::ops::Range;
 
@@ -401,7 +402,7 @@ pub(crate) struct PartFit {
 }
 
 /// Fits one part's knobs on `range` under `loss`, until it converges or
-/// spends `options.max_iterations`.
+/// spends `options.max_iterations`, with the parameters' uncertainty.
 fn fit_part(
     part: Part,
     start: &Working,
@@ -411,6 +412,31 @@ fn fit_part(
     options: FitOptions,
     loss: Loss,
 ) -> Result<PartFit, ModelError> {
+    let (working, result) = minimize_part(part, start, knobs, signals, range, options, loss)?;
+    let stride = match part {
+        Part::Hydraulic => 2,
+        Part::Mechanical | Part::Whole => 1,
+    };
+    let uncertainty = uncertainty(knobs, &working, &result, &result.residuals, stride);
+    Ok(PartFit {
+        working,
+        cost: result.cost / result.residuals.len().max(1) as f64,
+        uncertainty,
+    })
+}
+
+/// [`fit_part`]'s search alone: the fitted model and the optimizer's end.
+/// A screened start needs no more (its uncertainty's autocorrelation would
+/// cost a pass over every lag, never read).
+fn minimize_part(
+    part: Part,
+    start: &Working,
+    knobs: &[Free],
+    signals: &Signals,
+    range: Range<usize>,
+    options: FitOptions,
+    loss: Loss,
+) -> Result<(Working, lm::LmResult), ModelError> {
     let theta0: Vec<f64> = knobs.iter().map(|f| f.scaled(start.value(f.knob))).collect();
     let (lower, upper): (Vec<f64>, Vec<f64>) = knobs.iter().map(Free::bounds).unzip();
     let apply = |theta: &[f64]| -> Working {
@@ -438,18 +464,7 @@ fn fit_part(
         },
     )
     .ok_or_else(|| ModelError::Fit(format!("the {part:?} part does not simulate from its start")))?;
-    let working = apply(&result.params);
-    let final_residuals = residuals(&result.params).unwrap_or_default();
-    let stride = match part {
-        Part::Hydraulic => 2,
-        Part::Mechanical | Part::Whole => 1,
-    };
-    let uncertainty = uncertainty(knobs, &working, &result, &final_residuals, stride);
-    Ok(PartFit {
-        working,
-        cost: result.cost / final_residuals.len().max(1) as f64,
-        uncertainty,
-    })
+    Ok((apply(&result.params), result))
 }
 
 /// The knobs' standard deviations and inseparable pairs at a fit's optimum:
@@ -757,29 +772,36 @@ pub(crate) fn fit_effect(
     // much of a missing friction or load, and must give it back before a
     // start can be judged.
     let screening = estimation.start..estimation.start + estimation.len() / 3;
-    let mut best: Option<(f64, Working)> = None;
-    for (base, effect) in bases(part, &start, signals, estimation.clone())
+    let pairs: Vec<(Working, Effect)> = bases(part, &start, signals, estimation.clone())
         .into_iter()
         .flat_map(|b| starts(kind, signals).into_iter().map(move |e| (b.clone(), e)))
-    {
-        let mut candidate = base;
-        candidate.insert(effect);
-        let screened = match part {
-            // The pressures' baseline absorbs little of a hydraulic effect:
-            // judging each start as it is suffices.
-            Part::Hydraulic => candidate,
-            Part::Mechanical | Part::Whole => {
-                let quick = FitOptions {
-                    max_iterations: SCREENING_ITERATIONS,
-                    ..options
-                };
-                let Ok(screened) = fit_part(part, &candidate, &knobs, signals, screening.clone(), quick, loss) else {
-                    continue;
-                };
-                screened.working
-            }
-        };
-        let cost = part_cost(part, &screened, signals, screening.clone(), loss);
+        .collect();
+    // Each start is screened on its own: in parallel, the first of the
+    // lowest kept (as in order).
+    let screened: Vec<Option<(f64, Working)>> = pairs
+        .into_par_iter()
+        .map(|(base, effect)| {
+            let mut candidate = base;
+            candidate.insert(effect);
+            let screened = match part {
+                // The pressures' baseline absorbs little of a hydraulic
+                // effect: judging each start as it is suffices.
+                Part::Hydraulic => candidate,
+                Part::Mechanical | Part::Whole => {
+                    let quick = FitOptions {
+                        max_iterations: SCREENING_ITERATIONS,
+                        ..options
+                    };
+                    minimize_part(part, &candidate, &knobs, signals, screening.clone(), quick, loss)
+                        .ok()?
+                        .0
+                }
+            };
+            Some((part_cost(part, &screened, signals, screening.clone(), loss), screened))
+        })
+        .collect();
+    let mut best: Option<(f64, Working)> = None;
+    for (cost, screened) in screened.into_iter().flatten() {
         if best.as_ref().is_none_or(|(c, _)| cost < *c) {
             best = Some((cost, screened));
         }

@@ -236,6 +236,20 @@ pub(crate) fn moving_average(x: &[f64], half_width_s: f64, dt: f64) -> Vec<f64> 
 /// window shrunk symmetrically at the ends.
 fn local_line(x: &[f64], dt: f64, half_width: usize) -> (Vec<f64>, Vec<f64>) {
     let n = x.len();
+    // Running sums of x and of i·x: each window's sum and first moment in
+    // two differences, whatever its width (the rigid body's 0.1 s low-pass
+    // summed 201 samples per sample, on every mechanical fit).
+    let mut sums = Vec::with_capacity(n + 1);
+    let mut moments = Vec::with_capacity(n + 1);
+    let (mut sum, mut moment) = (0.0, 0.0);
+    sums.push(sum);
+    moments.push(moment);
+    for (i, v) in x.iter().enumerate() {
+        sum += v;
+        moment += i as f64 * v;
+        sums.push(sum);
+        moments.push(moment);
+    }
     let mut level = vec![0.0; n];
     let mut slope = vec![0.0; n];
     for k in 0..n {
@@ -244,15 +258,12 @@ fn local_line(x: &[f64], dt: f64, half_width: usize) -> (Vec<f64>, Vec<f64>) {
             level[k] = x[k];
             continue;
         }
-        let (mut sum, mut moment, mut squares) = (0.0, 0.0, 0.0);
-        for j in -(w as i64)..=(w as i64) {
-            let v = x[(k as i64 + j) as usize];
-            sum += v;
-            moment += j as f64 * v;
-            squares += (j * j) as f64;
-        }
-        level[k] = sum / (2 * w + 1) as f64;
-        slope[k] = moment / (squares * dt);
+        let (lo, hi) = (k - w, k + w + 1);
+        let window_sum = sums[hi] - sums[lo];
+        let window_moment = moments[hi] - moments[lo] - k as f64 * window_sum;
+        let squares = (w * (w + 1) * (2 * w + 1)) as f64 / 3.0;
+        level[k] = window_sum / (2 * w + 1) as f64;
+        slope[k] = window_moment / (squares * dt);
     }
     (level, slope)
 }
