@@ -322,6 +322,7 @@ impl Loss {
 
     fn residuals(&self, part: Part, signals: &Signals, prediction: &Prediction, range: Range<usize>) -> Vec<f64> {
         let mut out = Vec::with_capacity(2 * range.len());
+        let scales = [self.spreads[0].recip(), self.spreads[1].recip()];
         let mut push = |r: f64| {
             let a = r.abs();
             // √(2 ρ(r)) with the sign of r: least squares on these is Huber on r.
@@ -335,13 +336,13 @@ impl Loss {
         match part {
             Part::Hydraulic => {
                 for k in range {
-                    push((signals.p_a[k] - prediction.p_a[k]) / self.spreads[0]);
-                    push((signals.p_b[k] - prediction.p_b[k]) / self.spreads[1]);
+                    push((signals.p_a[k] - prediction.p_a[k]) * scales[0]);
+                    push((signals.p_b[k] - prediction.p_b[k]) * scales[1]);
                 }
             }
             Part::Mechanical | Part::Whole => {
                 for k in range {
-                    push((signals.theta[k] - prediction.theta[k]) / self.spreads[0]);
+                    push((signals.theta[k] - prediction.theta[k]) * scales[0]);
                 }
             }
         }
@@ -534,15 +535,37 @@ pub(crate) fn effective_sample_size(residuals: &[f64], stride: usize) -> f64 {
     if variance <= 0.0 {
         return n as f64;
     }
+    let lagged = lagged_products(&centred);
     let mut sum = 0.0;
     for lag in (stride..n / 2).step_by(stride) {
-        let rho = centred[lag..].iter().zip(&centred).map(|(a, b)| a * b).sum::<f64>() / variance;
+        let rho = lagged[lag] / variance;
         if rho <= 0.0 {
             break;
         }
         sum += rho;
     }
     n as f64 / (1.0 + 2.0 * sum)
+}
+
+/// Σ_k x[k + lag]·x[k] for every lag, through the FFT, zero-padded so it
+/// does not wrap around: output-error residuals stay correlated over
+/// thousands of lags, and the direct sums cost N per lag.
+fn lagged_products(x: &[f64]) -> Vec<f64> {
+    use rustfft::num_complex::Complex;
+    let size = (2 * x.len()).next_power_of_two();
+    let mut planner = rustfft::FftPlanner::new();
+    let mut buffer: Vec<Complex<f64>> = x
+        .iter()
+        .map(|&v| Complex::new(v, 0.0))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(size)
+        .collect();
+    planner.plan_fft_forward(size).process(&mut buffer);
+    for c in &mut buffer {
+        *c = Complex::new(c.norm_sqr(), 0.0);
+    }
+    planner.plan_fft_inverse(size).process(&mut buffer);
+    buffer.iter().take(x.len()).map(|c| c.re / size as f64).collect()
 }
 
 fn median_abs(x: &[f64]) -> f64 {
