@@ -345,10 +345,26 @@ fn not_itself(kind: EffectKind, params: &BTreeMap<String, f64>, signals: &Signal
     if kind == EffectKind::Backlash {
         let width = params.get("width").copied().unwrap_or(0.0);
         let step = super::fit::encoder_step(&signals.theta);
-        if width < step {
+        // A quantized reading may stand still for up to a step after any
+        // reversal by rounding alone, on the level the shaft leaves and on
+        // the one it comes back to.
+        if width < 2.0 * step {
             return Some(format!(
-                "its play, {width:.5} rad, is narrower than one step of the encoder ({step:.5} rad): the encoder cannot show it"
+                "its play, {width:.5} rad, is narrower than two steps of the encoder ({step:.5} rad each): rounding alone holds a reading that long at a reversal"
             ));
+        }
+    }
+    if kind == EffectKind::TimeDelay {
+        let delay = params.get("delay_s").copied().unwrap_or(0.0);
+        if let Some(lag) = super::fit::pressure_lag_behind_motion(signals, &refit.plant, 0..signals.len(), 2.0 * delay)
+        {
+            if lag >= 0.5 * delay {
+                return Some(format!(
+                    "the pressures lag the motion they drive by {:.1} ms, as much as the fitted delay ({:.1} ms): the pressure transducers lag, not the valve",
+                    1e3 * lag,
+                    1e3 * delay
+                ));
+            }
         }
     }
     if kind == EffectKind::LoadFlexibility {

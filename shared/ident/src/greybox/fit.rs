@@ -873,6 +873,63 @@ fn bases(part: Part, start: &Working, signals: &Signals, estimation: Range<usize
     bases
 }
 
+/// How long the measured pressures lag the motion they drive, s: the shift
+/// of the torque D (p_a − p_b) that best fits J ω̇ + b ω + c by equation
+/// error on `range`, searched up to `longest` (parabolic between samples).
+/// A lag of the valve delays pressures and motion alike and leaves this
+/// near zero; a lag of the pressure transducers shows here and nowhere
+/// else. Every signal is filtered by zero-phase windows, so no filter
+/// shifts one against another. `None` without measured pressures.
+pub(crate) fn pressure_lag_behind_motion(
+    signals: &Signals,
+    plant: &PlantParams,
+    range: Range<usize>,
+    longest: f64,
+) -> Option<f64> {
+    if !signals.has_pressures || signals.tau.is_some() {
+        return None;
+    }
+    let torque: Vec<f64> = (0..signals.len()).map(|k| signals.torque(plant, k)).collect();
+    let torque = super::signals::moving_average(&torque, PRESSURE_LAG_SMOOTHING_S, signals.dt);
+    let most = ((longest / signals.dt).ceil() as usize).max(2);
+    let end = range.end.min(signals.len().saturating_sub(most + 1));
+    if end <= range.start + 10 * most {
+        return None;
+    }
+    let residual = |shift: usize| -> f64 {
+        let rows = end - range.start;
+        let a = nalgebra::DMatrix::from_fn(rows, 3, |i, j| match j {
+            0 => signals.acceleration[range.start + i],
+            1 => signals.velocity[range.start + i],
+            _ => 1.0,
+        });
+        let y = nalgebra::DVector::from_fn(rows, |i, _| torque[range.start + i + shift]);
+        let normal = a.transpose() * &a;
+        let Some(solution) = normal.lu().solve(&(a.transpose() * &y)) else {
+            return f64::INFINITY;
+        };
+        (y - a * solution).norm_squared()
+    };
+    let costs: Vec<f64> = (0..=most).map(residual).collect();
+    let best = (0..costs.len()).min_by(|i, j| costs[*i].total_cmp(&costs[*j]))?;
+    let offset = if best > 0 && best < most {
+        let (l, c, r) = (costs[best - 1], costs[best], costs[best + 1]);
+        let curvature = l - 2.0 * c + r;
+        if curvature > 0.0 {
+            0.5 * (l - r) / curvature
+        } else {
+            0.0
+        }
+    } else {
+        0.0
+    };
+    Some((best as f64 + offset) * signals.dt)
+}
+
+/// Half-width of the torque's smoothing for [`pressure_lag_behind_motion`],
+/// s: the velocity's own (its acceleration is smoothed as much).
+const PRESSURE_LAG_SMOOTHING_S: f64 = 0.02;
+
 /// Half-width of the equation error's moving average, s: its first null is
 /// at 5 Hz, below a flexible load's mode.
 const LOW_PASS_HALF_WIDTH_S: f64 = 0.1;
