@@ -22,7 +22,7 @@ pub struct FitOptions {
     /// The first fraction of the record estimates; the rest validates.
     pub estimation_fraction: f64,
     /// The most Levenberg–Marquardt iterations of one fit; it stops sooner
-    /// once three iterations in a row gain under 1e-6 of the cost. The
+    /// once three iterations in a row gain under 1e-4 of the cost. The
     /// baseline and every candidate get the same.
     pub max_iterations: usize,
 }
