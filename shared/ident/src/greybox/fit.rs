@@ -896,19 +896,27 @@ pub(crate) fn pressure_lag_behind_motion(
     if end <= range.start + 10 * most {
         return None;
     }
+    // The regressors do not move with the shift: their normal matrix is
+    // factored once, and each shift costs two passes over the data.
+    let rows = range.start..end;
+    let regressors = |k: usize| [signals.acceleration[k], signals.velocity[k], 1.0];
+    let mut normal = nalgebra::Matrix3::zeros();
+    for k in rows.clone() {
+        let x = nalgebra::Vector3::from(regressors(k));
+        normal += x * x.transpose();
+    }
+    let factored = normal.lu();
     let residual = |shift: usize| -> f64 {
-        let rows = end - range.start;
-        let a = nalgebra::DMatrix::from_fn(rows, 3, |i, j| match j {
-            0 => signals.acceleration[range.start + i],
-            1 => signals.velocity[range.start + i],
-            _ => 1.0,
-        });
-        let y = nalgebra::DVector::from_fn(rows, |i, _| torque[range.start + i + shift]);
-        let normal = a.transpose() * &a;
-        let Some(solution) = normal.lu().solve(&(a.transpose() * &y)) else {
+        let mut projected = nalgebra::Vector3::zeros();
+        for k in rows.clone() {
+            projected += nalgebra::Vector3::from(regressors(k)) * torque[k + shift];
+        }
+        let Some(solution) = factored.solve(&projected) else {
             return f64::INFINITY;
         };
-        (y - a * solution).norm_squared()
+        rows.clone()
+            .map(|k| (torque[k + shift] - nalgebra::Vector3::from(regressors(k)).dot(&solution)).powi(2))
+            .sum()
     };
     let costs: Vec<f64> = (0..=most).map(residual).collect();
     let best = (0..costs.len()).min_by(|i, j| costs[*i].total_cmp(&costs[*j]))?;
