@@ -172,7 +172,8 @@ impl Config {
             message: e.to_string(),
         })?;
         config.validate(path)?;
-        Ok(config.resolved_from(path))
+        // Each file's paths were made its own as it was read.
+        Ok(config)
     }
 
     /// Paths in the file are the file's: relative to its folder.
@@ -336,6 +337,11 @@ mod tests {
         let config = Config::load(&path).expect("config/machine-drift.toml");
         let model = config.shadow.model.as_deref().expect("a shadow model");
         assert!(model.is_file(), "resolved beside the config: {}", model.display());
+        // As the README runs it: a path relative to the working folder
+        // (the package's, under cargo test), its model resolved once.
+        let relative = Config::load(Path::new("../../config/machine-drift.toml")).expect("relative");
+        let model = relative.shadow.model.expect("a shadow model");
+        assert_eq!(model, Path::new("../../config/machine-model.toml"));
         assert_eq!(config.machine.and_then(|m| m.drift).map(|d| d.to), Some(0.06));
         let cold = Config::load(&path.with_file_name("machine-cold.toml")).expect("config/machine-cold.toml");
         let drift = cold.machine.and_then(|m| m.drift).expect("a drift");
