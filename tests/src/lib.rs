@@ -61,10 +61,36 @@ pub fn unique_scope(test: &str) -> ScopeGuard {
     ScopeGuard(scope)
 }
 
-pub fn scratch_dir(test: &str) -> PathBuf {
+/// A test's own folder under the temporary directory, removed when the
+/// test ends, also when it fails half-way (set `HYDRACTL_KEEP_SCRATCH` to
+/// keep it for a post-mortem).
+pub fn scratch_dir(test: &str) -> ScratchDir {
     let dir = std::env::temp_dir().join(format!("hydractl-system-{}-{test}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
+    ScratchDir(dir)
+}
+
+pub struct ScratchDir(PathBuf);
+
+impl std::ops::Deref for ScratchDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for ScratchDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        if std::env::var_os("HYDRACTL_KEEP_SCRATCH").is_none() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// A `hydractl run` that is stopped when dropped, also when a test fails

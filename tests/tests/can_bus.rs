@@ -111,5 +111,4 @@ fn a_candump_log_replayed_onto_the_virtual_bus_is_dumped_back_frame_for_frame() 
         stderr.contains("bad.log") && stderr.contains("candump line 2"),
         "{stderr}"
     );
-    std::fs::remove_dir_all(dir).ok();
 }

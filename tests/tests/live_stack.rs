@@ -60,7 +60,6 @@ fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
         assert!(names.contains(&name), "{name} in {names:?}");
     }
     assert!(!scope.has_files(), "a clean stop leaves nothing behind");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -138,7 +137,6 @@ fn a_killed_controller_is_detected_the_valve_goes_neutral_and_it_restarts() {
         // on (a reading or two later when the paused plant waits for it).
         assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 3), "{f}");
     }
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -276,5 +274,4 @@ fn a_start_over_the_files_of_a_killed_run_works() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(read_json(&summary)["cycles"].as_u64().expect("cycles") > 1_500);
     assert!(!scope.has_files());
-    std::fs::remove_dir_all(dir).ok();
 }

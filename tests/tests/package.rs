@@ -160,7 +160,6 @@ fn the_package_holds_the_stack_its_configs_and_a_unit_that_verifies() {
         }
         Err(e) => eprintln!("SKIPPED systemd-analyze verify: {e}"),
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -218,5 +217,4 @@ fn the_installed_layout_runs_the_stack_with_its_own_binaries_and_configs() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let summary = read_json(&summary);
     assert!(summary["cycles"].as_u64() >= Some(1_900), "{summary}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

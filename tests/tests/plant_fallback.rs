@@ -196,7 +196,6 @@ fn a_lost_machine_is_replaced_by_the_simulated_plant_from_its_last_state() {
         ("machine", "simulation")
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -260,5 +259,4 @@ fn the_loop_moves_to_the_simulation_and_back_on_request_without_a_repeated_readi
         assert_eq!(seat.readings[i].1, to);
     }
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }

@@ -282,7 +282,6 @@ fn a_ten_second_recording_holds_every_sample_published_and_python_decodes_it() {
             }
         }
     }
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -336,7 +335,6 @@ fn a_killed_recorder_leaves_a_readable_file_and_is_restarted_into_a_new_one() {
     assert_eq!(second.truncated, None);
     assert!(channel(&second, service::VALVE).messages >= 500, "{second:?}");
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -464,5 +462,4 @@ fn record_attaches_to_a_running_stack_and_replay_drives_a_process_with_it() {
     }
     drop(outputs);
     drop(bus);
-    std::fs::remove_dir_all(dir).ok();
 }

@@ -53,7 +53,6 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
         shadow["fit_percent"]["theta"].as_f64().expect("theta's fit") > 90.0,
         "{shadow}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -109,5 +108,4 @@ fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
         let fit = shadow["fit_percent"][output].as_f64().expect("fit");
         assert!(fit > 85.0, "{output}: {fit} % in {shadow}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -107,7 +107,6 @@ fn the_valve_drives_neutral_when_stopped_killed_or_restarted() {
         assert!(f["valve_safe_after_periods"].as_u64().is_some(), "{f}");
     }
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -164,7 +163,6 @@ fn a_spinning_controller_is_named_and_killed_and_the_valve_goes_neutral_meanwhil
     assert_eq!(samples[first_fault].command, 0.0);
     assert!(neutral_after_ms <= 30.0, "neutral after {neutral_after_ms} ms");
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -223,7 +221,6 @@ fn a_limit_cycling_baseline_comes_back_ever_later_and_its_bursts_are_bounded() {
     for f in &bursts {
         assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 2), "{f}");
     }
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -301,7 +298,6 @@ fn a_stranger_publishing_commands_is_found_and_reported() {
     // the torque stage's is driven (SAFETY.md, H10); counted to be seen.
     eprintln!("valve samples driven full swing by the stranger: {driven_by_stranger}");
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -336,5 +332,4 @@ fn a_restarted_plant_does_not_shake_the_load() {
         assert!(f["valve_safe_after_periods"].as_u64().is_some_and(|p| p <= 30), "{f}");
     }
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }

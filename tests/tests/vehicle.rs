@@ -39,7 +39,6 @@ fn a_thirty_second_run_takes_no_page_fault_on_the_loop() {
         .expect("supervisor");
     assert!(supervisor["page_faults_after_start"].is_null(), "{supervisor}");
     assert!(summary["cycles"].as_u64().expect("cycles") >= 29_000, "{summary}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A tmpfs of `size` mounted at `dir` for a test, unmounted when dropped:
@@ -148,7 +147,6 @@ fn a_recording_onto_a_full_disk_stops_once_says_what_it_lost_and_the_loop_holds(
         8.0 - after_cut_s
     );
     drop(disk);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -224,7 +222,6 @@ fn a_ring_of_split_files_stays_within_keep_mb_for_a_run_five_times_longer() {
         held[hydractl_samples::service::VALVE].last() >= Some(&((SECONDS - 1) * 1000)),
         "{newest}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The journal's socket for a test, when no journald listens: removed
@@ -379,5 +376,4 @@ fn as_a_service_every_process_logs_to_the_journal_with_its_fields() {
         !text.contains("started valve"),
         "the journal's lines are not written twice: {text}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

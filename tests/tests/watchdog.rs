@@ -110,7 +110,6 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
         (Some("pid"), Some("hinf"))
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -162,7 +161,6 @@ fn a_swap_to_a_variant_that_cannot_start_leaves_the_running_one_in_charge() {
         "the loop carries on"
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -210,7 +208,6 @@ fn a_process_whose_rule_says_never_stays_down_with_the_valve_neutral() {
     assert_eq!(faults[0]["process"], "friction");
     assert!(faults[0]["restarted_after_ms"].is_null(), "{summary}");
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -252,7 +249,6 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
         "{summary}"
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -313,7 +309,6 @@ fn a_nan_command_makes_the_valve_neutral_and_the_loop_carries_on() {
         "no process was at fault: {summary}"
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -398,7 +393,6 @@ fn a_controller_whose_commands_keep_being_rejected_is_restarted_into_its_fallbac
         "only the culprit: {summary}"
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -459,5 +453,4 @@ fn a_limit_cycling_torque_loop_is_held_neutral_and_restarted_into_its_fallback_v
         "{summary}"
     );
     drop(observer);
-    std::fs::remove_dir_all(dir).ok();
 }
