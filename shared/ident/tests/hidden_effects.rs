@@ -47,7 +47,7 @@ fn hidden(spec: &str, seed: u64) {
         .map(|c| (c.effect.as_str(), c.score, c.significant))
         .collect();
     assert_eq!(first.effect, kind.name(), "{spec}, seed {seed}: ranking {ranking:?}");
-    assert!(first.significant, "{spec}: {ranking:?}");
+    assert!(first.significant, "{spec}: {ranking:?}: {}", first.evidence);
     assert!(
         first.validation_nrmse_after <= 0.5 * first.validation_nrmse_before,
         "{spec}: {} → {}",

@@ -193,7 +193,8 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
         /// Also write each plant's data to DIR/<case>-<seed>.csv
-        /// (the columns diagnosed), for `model diagnose` and other tools.
+        /// (the columns diagnosed), for `model diagnose` and other tools,
+        /// and its diagnosis to DIR/<case>-<seed>.json (as `model diagnose --json`).
         #[arg(long, value_name = "DIR")]
         save_data: Option<std::path::PathBuf>,
         /// The sensors the machine has: `full` (valve command, both chamber

@@ -589,6 +589,11 @@ pub fn bench_foreign(
         let start = std::time::Instant::now();
         let diagnosis = greybox::diagnose(&signals, None, FitOptions::default())?;
         let seconds = start.elapsed().as_secs_f64();
+        if let Some(dir) = save_data {
+            let path = dir.join(format!("{}-{plant_seed}.json", name(&hidden)));
+            std::fs::write(&path, serde_json::to_string_pretty(&diagnosis)?)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
         let first = diagnosis.candidates.first();
         let fitted = hidden.and_then(|h| {
             let (key, _) = h.main();
