@@ -121,6 +121,26 @@ fn without_pressures_the_motion_effects_are_named_first() {
     assert!(missed.len() <= 1, "missed {} of 4: {missed:#?}", missed.len());
 }
 
+/// Without pressures the motion model is too far off (angle NRMSE
+/// 0.06-0.25) to gain from modelling a 2° staircase, but the readings
+/// show it themselves: every one on the encoder's lattice.
+#[test]
+fn without_pressures_a_coarse_encoder_is_named_from_its_readings() {
+    let hidden = Hidden::all()
+        .into_iter()
+        .find(|h| matches!(h, Hidden::Quantization { .. }))
+        .expect("a quantization case");
+    let diagnosis = diagnosed(21, Some(hidden), Sensors::Motion, 1);
+    named_first(&diagnosis, hidden).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        diagnosis.candidates[0]
+            .evidence
+            .starts_with("all 60000 readings of the angle lie on multiples of 0.03491 rad"),
+        "{}",
+        diagnosis.candidates[0].evidence
+    );
+}
+
 /// 50 Hz data: segments are half a second whatever the rate.
 #[test]
 fn at_fifty_hertz_a_deadzone_is_named_and_nothing_else() {

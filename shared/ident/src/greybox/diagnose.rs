@@ -8,7 +8,9 @@
 //! their errors are close to independent), it lowers its output's error by
 //! more than [`MIN_ERROR_REMOVED`], by more than chance would: a one-sided
 //! paired t-test at α = 0.01 shared among the effects tried (Bonferroni),
-//! scale-free by construction.
+//! scale-free by construction. A coarse encoder is also called by its
+//! readings, every one on its step's lattice, where a model without
+//! pressures is too far off to gain from its staircase.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -231,11 +233,14 @@ pub fn diagnose_with(
         let params = refit.effects.0.get(kind.name()).cloned().unwrap_or_default();
         let resolution = resolution_share(*kind, &params, signals, validation.clone());
         let not_itself = not_itself(*kind, &params, signals, &refit);
-        let significant = !found_nothing
-            && test.statistic > test.threshold
-            && nrmse_after < nrmse_before
-            && resolution.is_none_or(|share| share >= RESOLUTION_SHARE)
-            && not_itself.is_none();
+        let on_lattice = (*kind == EffectKind::Quantization)
+            .then(|| readings_on_lattice(&signals.theta, params.get("step").copied().unwrap_or(0.0)))
+            .flatten();
+        // The readings themselves can show a coarse encoder where a model
+        // without pressures is too far off to gain from its staircase.
+        let shown = (!found_nothing && test.statistic > test.threshold && nrmse_after < nrmse_before)
+            || (on_lattice.is_some() && nrmse_after <= nrmse_before);
+        let significant = shown && resolution.is_none_or(|share| share >= RESOLUTION_SHARE) && not_itself.is_none();
         let evidence = evidence(
             *kind,
             part,
@@ -250,6 +255,7 @@ pub fn diagnose_with(
                 found_nothing,
                 resolution,
                 not_itself,
+                on_lattice,
             },
         );
         let prefix = format!("{}.", kind.name());
@@ -391,6 +397,34 @@ fn not_itself(kind: EffectKind, params: &BTreeMap<String, f64>, signals: &Signal
     None
 }
 
+/// The share of a step within which a reading counts as on the encoder's
+/// lattice: a continuous reading lands so with a chance of twice this.
+const LATTICE_TOLERANCE: f64 = 0.01;
+
+/// How many readings there are and their step, if every finite angle of the record lies
+/// on the lattice of the step the data show, through the first (within
+/// [`LATTICE_TOLERANCE`] of a step), and the fitted `step` is that step
+/// within 5 %: the encoder's quantization seen in the readings themselves,
+/// with no model. Readings of a continuous sensor would each land there by
+/// a chance of 2 %, all of thousands of them never.
+fn readings_on_lattice(theta: &[f64], fitted: f64) -> Option<(usize, f64)> {
+    let step = super::fit::encoder_step(theta);
+    if !(step > 0.0 && (fitted - step).abs() <= 0.05 * step) {
+        return None;
+    }
+    let mut readings = theta.iter().filter(|t| t.is_finite());
+    let origin = *readings.next()?;
+    let mut count = 1;
+    for reading in readings {
+        let steps = (reading - origin) / step;
+        if (steps - steps.round()).abs() > LATTICE_TOLERANCE {
+            return None;
+        }
+        count += 1;
+    }
+    (count >= 100).then_some((count, step))
+}
+
 /// For the encoder's step: its share of the angle's spread on `validation`.
 fn resolution_share(
     kind: EffectKind,
@@ -411,6 +445,8 @@ struct Judgement {
     found_nothing: bool,
     resolution: Option<f64>,
     not_itself: Option<String>,
+    /// How many readings lie on the encoder's lattice, and its step, if all do.
+    on_lattice: Option<(usize, f64)>,
 }
 
 /// A one-sided paired t-test of the squared error, segment by segment.
@@ -509,6 +545,7 @@ fn evidence(
         found_nothing,
         resolution,
         not_itself,
+        on_lattice,
     } = judgement;
     let get = |key: &str| params.get(key).copied().unwrap_or(f64::NAN);
     let change = format!(
@@ -607,6 +644,13 @@ fn evidence(
         test.threshold
     );
     let output = part.output();
+    if let Some((readings, step)) = on_lattice.filter(|_| significant) {
+        return format!(
+            "all {readings} readings of the angle lie on multiples of {step:.5} rad (within {:.0}% of a step), where a continuous reading lands so by a chance of {:.0}%; {judged}; {what}{change}",
+            100.0 * LATTICE_TOLERANCE,
+            200.0 * LATTICE_TOLERANCE
+        );
+    }
     if found_nothing {
         format!("not significant: fitted as hard as the baseline, it lowers the estimation loss no further ({judged})")
     } else if let Some(why) = not_itself.filter(|_| test.statistic > test.threshold && after < before) {
@@ -636,4 +680,41 @@ fn evidence(
 
 fn share(x: &[f64], predicate: impl Fn(f64) -> bool) -> f64 {
     x.iter().filter(|v| predicate(**v)).count() as f64 / x.len().max(1) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::readings_on_lattice;
+
+    fn sine(samples: usize) -> impl Iterator<Item = f64> {
+        (0..samples).map(|k| 0.3 + 0.8 * (k as f64 * 1e-3 * 2.0).sin())
+    }
+
+    #[test]
+    fn quantized_readings_lie_on_their_lattice_and_continuous_ones_do_not() {
+        let step = 2f64.to_radians();
+        // An encoder whose zero is not the record's first reading.
+        let quantized: Vec<f64> = sine(5000)
+            .map(|x| 0.0123 + step * ((x - 0.0123) / step).round())
+            .collect();
+        for fitted in [step, 1.03 * step] {
+            let (count, seen) = readings_on_lattice(&quantized, fitted).expect("on the lattice");
+            assert_eq!(count, 5000);
+            assert!((seen - step).abs() < 1e-12, "{seen}");
+        }
+        assert_eq!(
+            readings_on_lattice(&quantized, 1.1 * step),
+            None,
+            "a fit of another step"
+        );
+        let continuous: Vec<f64> = sine(5000).collect();
+        let seen = crate::greybox::fit::encoder_step(&continuous);
+        assert_eq!(readings_on_lattice(&continuous, seen), None);
+        let noisy: Vec<f64> = quantized
+            .iter()
+            .enumerate()
+            .map(|(k, x)| x + 0.05 * step * ((k * 7919 % 1000) as f64 - 500.0) / 500.0)
+            .collect();
+        assert_eq!(readings_on_lattice(&noisy, step), None, "noise after the encoder");
+    }
 }
