@@ -226,6 +226,7 @@ pub fn signal(pid: u32, sig: nix::sys::signal::Signal) {
 pub struct Observer {
     pub status: Reader<SupervisorStatus>,
     pub valve: Reader<ValveSample>,
+    pub position: Reader<PositionSample>,
     // Dropped last: the ports above live in this node.
     _bus: Bus,
 }
@@ -251,6 +252,7 @@ impl Observer {
         Self {
             status: Reader::open(&bus, service::SUPERVISOR_STATUS, 4).expect("status"),
             valve: Reader::open(&bus, service::VALVE, 256).expect("valve"),
+            position: Reader::open(&bus, service::POSITION, 4).expect("position"),
             _bus: bus,
         }
     }
@@ -294,6 +296,21 @@ impl Observer {
 
     pub fn drain_valve(&self) {
         while let Ok(Some(_)) = self.valve.next() {}
+    }
+
+    /// The RMS of reference minus angle over `window`, from the outer
+    /// loop's samples, one every 5 ms.
+    pub fn tracking_rms(&self, window: Duration) -> f64 {
+        let deadline = Instant::now() + window;
+        let (mut sum, mut count) = (0.0, 0usize);
+        while Instant::now() < deadline {
+            if let Ok(Some(p)) = self.position.latest() {
+                sum += (p.reference_angle - p.angle).powi(2);
+                count += 1;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        (sum / count.max(1) as f64).sqrt()
     }
 }
 

@@ -38,6 +38,7 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
         assert!(p["pid"].as_u64().is_some_and(|pid| pid > 0));
     }
     let old_position = process(&before, "position")["pid"].clone();
+    let tracking_before = observer.tracking_rms(Duration::from_secs(5));
 
     observer.drain_valve();
     let mut faults = 0;
@@ -61,6 +62,16 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
         }
     }
     assert_eq!(faults, 0, "the valve never went to neutral");
+    // Back on the controllers it started with, the loop tracks as it did:
+    // a handover's step fades (0.2 s) instead of staying in the model-
+    // following controller as a bias (0.045 rad against 0.004 before).
+    std::thread::sleep(Duration::from_secs(2));
+    let tracking_after = observer.tracking_rms(Duration::from_secs(5));
+    eprintln!("tracking rms before the swaps {tracking_before:.4} rad, after {tracking_after:.4} rad");
+    assert!(
+        tracking_after < 2.5 * tracking_before.max(0.005),
+        "tracking rms {tracking_after} rad after the swaps, {tracking_before} before"
+    );
     let after = status(&scope);
     assert_ne!(
         process(&after, "position")["pid"],

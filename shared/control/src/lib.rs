@@ -10,6 +10,7 @@ mod limit_cycle;
 mod mfc;
 mod pid;
 mod trajectory;
+mod transfer;
 mod valve;
 mod velocity;
 
@@ -19,6 +20,7 @@ pub use limit_cycle::{LimitCycleDetector, LimitCycleParams};
 pub use mfc::{Mfc, MfcParams};
 pub use pid::{Pid, PidParams};
 pub use trajectory::{Reference, Trajectory};
+pub use transfer::FadingTransfer;
 pub use valve::{ValveShaper, ValveShaperParams};
 pub use velocity::{VelocityEstimator, VelocityEstimatorParams};
 

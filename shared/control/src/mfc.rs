@@ -1,6 +1,6 @@
 use serde::{Deserialize, Serialize};
 
-use crate::{require_non_negative, require_positive, ControlError, Pid, PidParams};
+use crate::{require_non_negative, require_positive, ControlError, FadingTransfer, Pid, PidParams};
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -33,8 +33,18 @@ pub struct Mfc {
     pid_b: Pid,
     model_angle: f64,
     model_velocity: f64,
+    /// What a handover asked beyond u_B + u_A + feed-forward.
+    transfer: FadingTransfer,
     output: f64,
 }
+
+/// The time constant over which the step between a handed-over output and
+/// this controller's own fades out. PID B has no integral action (ki = 0
+/// in every config) to unwind a step put into its integrator: one stayed
+/// there for good and, through the forward model, held the plant 0.045 rad
+/// off the reference after a swap pid → mfc (0.004 before it). A fifth of
+/// a second is a few of the outer loop's own time constants.
+pub const TRANSFER_FADE_S: f64 = 0.2;
 
 impl Mfc {
     pub fn new(params: MfcParams, ts: f64) -> Result<Self, ControlError> {
@@ -62,6 +72,7 @@ impl Mfc {
             pid_b: Pid::new(limited(params.pid_b), ts)?,
             model_angle: 0.0,
             model_velocity: 0.0,
+            transfer: FadingTransfer::new(TRANSFER_FADE_S, ts),
             output: 0.0,
         })
     }
@@ -71,6 +82,7 @@ impl Mfc {
         self.pid_b.reset();
         self.model_angle = 0.0;
         self.model_velocity = 0.0;
+        self.transfer.reset();
         self.output = 0.0;
     }
 
@@ -89,19 +101,22 @@ impl Mfc {
         let p = &self.params;
         self.model_velocity += self.ts * (u_b - p.b_hat * self.model_velocity) / p.j_hat;
         self.model_angle += self.ts * self.model_velocity;
-        self.output = (u_b + u_a + feedforward).clamp(p.output_min, p.output_max);
+        self.output = self
+            .transfer
+            .apply(u_b + u_a + feedforward)
+            .clamp(p.output_min, p.output_max);
         self.output
     }
 
     /// Tracking a running controller's `output`, period after period, while
-    /// this one stands by: its forward model runs on, as it would in
-    /// charge, and PID B's integrator takes up the difference, so that from
-    /// the switch it goes on from the running output. (Re-initializing the
-    /// model from the measured, noisy velocity every period would not: with
-    /// the cascade's gains, one period's noise is tens of N·m.)
+    /// this one stands by: its forward model and PIDs run on, as they
+    /// would in charge, and the transfer takes up the difference, so that
+    /// from the switch it goes on from the running output and fades to its
+    /// own over [`TRANSFER_FADE_S`]. (Re-initializing the model from the
+    /// measured, noisy velocity every period would not: with the cascade's
+    /// gains, one period's noise is tens of N·m.)
     pub fn track(&mut self, output: f64) {
-        let delta = output - self.output;
-        self.pid_b.shift_output(delta);
+        self.transfer.track(output);
         self.output = output;
     }
 
@@ -117,8 +132,14 @@ impl Mfc {
         // speed less the model's (PID B's).
         let ts = self.ts;
         self.pid_a.initialize_output(0.0, -velocity * ts, 0.0);
-        self.pid_b
-            .initialize_output(output - feedforward, reference - angle + velocity * ts, 0.0);
+        let error_b = reference - angle + velocity * ts;
+        self.pid_b.start_from(error_b);
+        // PID B's next output is about kp·error: the rest is a transfer
+        // that fades, not a bias in an integrator that has no integral
+        // action to unwind it.
+        self.transfer
+            .start(output, self.params.pid_b.kp * error_b + feedforward);
+        self.output = output;
     }
 }
 
@@ -193,6 +214,39 @@ mod tests {
         let shifted = c.update(reference(200), model, 0.0);
         let unshifted = free.update(reference(200), model, 0.0);
         assert!((shifted - unshifted - 0.1).abs() < 1e-9, "{shifted} {unshifted}");
+    }
+
+    #[test]
+    fn a_handed_over_step_fades_and_leaves_no_bias() {
+        let ts = 0.001;
+        let mut c = Mfc::new(params(), ts).expect("valid");
+        let reference = |k: usize| 0.2 * (2.0 * k as f64 * ts).sin();
+        // The plant a little behind the reference, as a running loop leaves it.
+        let angle = |k: usize| 0.9 * reference(k);
+        let mut own = 0.0;
+        for k in 0..200 {
+            own = c.update(reference(k), angle(k), 0.0);
+        }
+        let mut never_stood_by = c.clone();
+        never_stood_by.track(own);
+        c.track(own + 0.3);
+        let periods = |seconds: f64| (seconds / ts).round() as usize;
+        let mut gaps = Vec::new();
+        for k in 200..200 + periods(10.0 * TRANSFER_FADE_S) {
+            let handed = c.update(reference(k), angle(k), 0.0);
+            let free = never_stood_by.update(reference(k), angle(k), 0.0);
+            gaps.push(handed - free);
+            assert_eq!(
+                c.model_angle(),
+                never_stood_by.model_angle(),
+                "the model runs on untouched"
+            );
+        }
+        assert!((gaps[0] - 0.3).abs() < 1e-12, "bumpless: {}", gaps[0]);
+        let after_one_fade = gaps[periods(TRANSFER_FADE_S) - 1];
+        assert!((after_one_fade - 0.3 * (-1f64).exp()).abs() < 1e-3, "{after_one_fade}");
+        let last = *gaps.last().expect("periods");
+        assert!(last.abs() < 0.3 * (-9.9f64).exp(), "no bias left: {last}");
     }
 
     #[test]

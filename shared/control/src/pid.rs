@@ -121,13 +121,11 @@ impl Pid {
         output
     }
 
-    /// Tracking: moves the integrator, and so this and every later output,
-    /// by `delta`, leaving the derivative's memory as it is.
-    pub fn shift_output(&mut self, delta: f64) {
-        if delta.is_finite() {
-            self.integral += delta;
-            self.output += delta;
-        }
+    /// A start with nothing integrated, `error` remembered as the last one
+    /// seen, so that the derivative starts from the motion, not a jump.
+    pub fn start_from(&mut self, error: f64) {
+        self.reset();
+        self.previous_error = Some(error);
     }
 
     /// Bumpless start: sets the integrator so that, for this `error` and

@@ -1,7 +1,7 @@
 //! The torque stage: the inner loop, torque reference to valve command.
 
 use hydractl_config::{Config, Structure, TorqueVariant};
-use hydractl_control::{HInfinity, Pid};
+use hydractl_control::{FadingTransfer, HInfinity, Pid};
 
 use crate::{in_section, PositionOutput, SensorEstimate, StackError};
 
@@ -24,13 +24,9 @@ pub struct TorqueStage {
     rate_blend: f64,
     previous_reference: Option<f64>,
     reference_rate: f64,
-    /// Bumpless transfer into the H∞ loop: the running command less the
-    /// H∞'s own, added to its output and faded out after the switch (its
-    /// state, full of fast modes, is never forced).
-    transfer_offset: f64,
-    transfer_fade: f64,
-    /// The H∞ loop's own last command, before the offset.
-    own_command: f64,
+    /// Bumpless transfer into the H∞ loop, whose state, full of fast
+    /// modes, is never forced.
+    transfer: FadingTransfer,
 }
 
 /// How fast a transfer offset fades once a standby inner loop is in charge.
@@ -63,9 +59,7 @@ impl TorqueStage {
             rate_blend: ts / (torque.rate_filter_s + ts),
             previous_reference: None,
             reference_rate: 0.0,
-            transfer_offset: 0.0,
-            transfer_fade: (-ts / TRANSFER_FADE_S).exp(),
-            own_command: 0.0,
+            transfer: FadingTransfer::new(TRANSFER_FADE_S, ts),
         })
     }
 
@@ -99,7 +93,7 @@ impl TorqueStage {
         let error = position.output - sensor.torque;
         match &mut self.inner {
             InnerLoop::Pid(pid) => pid.initialize_output(command, error, feedforward),
-            InnerLoop::HInfinity(_) => self.transfer_offset = command - self.own_command,
+            InnerLoop::HInfinity(_) => self.transfer.track(command),
         }
     }
 
@@ -118,12 +112,7 @@ impl TorqueStage {
         let error = torque_reference - sensor.torque;
         match &mut self.inner {
             InnerLoop::Pid(pid) => pid.update(error, feedforward),
-            InnerLoop::HInfinity(hinf) => {
-                self.own_command = hinf.update(error) + feedforward;
-                let command = self.own_command + self.transfer_offset;
-                self.transfer_offset *= self.transfer_fade;
-                command.clamp(-1.0, 1.0)
-            }
+            InnerLoop::HInfinity(hinf) => self.transfer.apply(hinf.update(error) + feedforward).clamp(-1.0, 1.0),
         }
     }
 }
