@@ -122,7 +122,24 @@ impl Mfc {
 
     /// Bumpless start from a running loop: the model starts where the plant
     /// is, PID A at zero, and PID B so that the next output is `output`.
-    pub fn initialize_output(&mut self, output: f64, reference: f64, angle: f64, velocity: f64, feedforward: f64) {
+    /// Only on finite inputs, and says whether it started: a model started
+    /// at an invalid reading's NaN would stay NaN and hold the output for
+    /// good.
+    #[must_use]
+    pub fn initialize_output(
+        &mut self,
+        output: f64,
+        reference: f64,
+        angle: f64,
+        velocity: f64,
+        feedforward: f64,
+    ) -> bool {
+        if ![output, reference, angle, velocity, feedforward]
+            .iter()
+            .all(|x| x.is_finite())
+        {
+            return false;
+        }
         self.model_angle = angle;
         self.model_velocity = velocity;
         // Each PID remembers the error it would have seen had it been
@@ -140,6 +157,7 @@ impl Mfc {
         self.transfer
             .start(output, self.params.pid_b.kp * error_b + feedforward);
         self.output = output;
+        true
     }
 }
 
@@ -252,13 +270,13 @@ mod tests {
     #[test]
     fn initialize_output_is_bumpless() {
         let mut c = Mfc::new(params(), 0.001).expect("valid");
-        c.initialize_output(0.42, 0.3, 0.25, 0.0, 0.02);
+        assert!(c.initialize_output(0.42, 0.3, 0.25, 0.0, 0.02));
         assert!((c.update(0.3, 0.25, 0.02) - 0.42).abs() < 1e-12);
         // On a moving plant the next output moves on from it, without the
         // derivative kick a zero remembered error would give.
         let (velocity, ts) = (0.5, 0.001);
         let mut c = Mfc::new(params(), ts).expect("valid");
-        c.initialize_output(0.42, 0.3, 0.25, velocity, 0.02);
+        assert!(c.initialize_output(0.42, 0.3, 0.25, velocity, 0.02));
         let next = c.update(0.3 + velocity * ts, 0.25 + velocity * ts, 0.02);
         assert!((next - 0.42).abs() < 1e-3, "{next}");
     }

@@ -77,14 +77,17 @@ impl PositionStage {
         let reference = self.trajectory.sample(time);
         let error = reference.angle - sensor.angle;
         if !self.started {
-            self.started = true;
             // Start where the machine is, not at zero: a stage restarted
             // mid-run would otherwise begin with its model a whole motion
-            // away. The output starts at the model's inverse dynamics.
-            if let (OuterLoop::Mfc(mfc), Some((j_hat, b_hat))) = (&mut self.outer, self.mfc_model) {
-                let output = j_hat * reference.acceleration + b_hat * reference.velocity + friction;
-                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction);
-            }
+            // away. The output starts at the model's inverse dynamics; an
+            // invalid reading (a late CAN PDO's NaN) starts nothing.
+            self.started = match (&mut self.outer, self.mfc_model) {
+                (OuterLoop::Mfc(mfc), Some((j_hat, b_hat))) => {
+                    let output = j_hat * reference.acceleration + b_hat * reference.velocity + friction;
+                    mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction)
+                }
+                _ => true,
+            };
         }
         let output = match &mut self.outer {
             OuterLoop::Pid(pid) => pid.update(error, friction),
@@ -115,9 +118,49 @@ impl PositionStage {
             // first period; from then on its model runs on.
             OuterLoop::Mfc(mfc) if self.started => mfc.track(output),
             OuterLoop::Mfc(mfc) => {
-                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction)
+                self.started = mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction);
+                return;
             }
         }
         self.started = true;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A model-following loop whose first reading is invalid (a late CAN
+    /// PDO's NaN) starts on the first valid one and tracks as one that
+    /// never saw it; started at the NaN, its model stayed NaN and its
+    /// output held for good.
+    #[test]
+    fn an_invalid_first_reading_starts_nothing() {
+        let config = Config::default_sim().expect("valid");
+        let mut clean = PositionStage::with_variant(&config, PositionVariant::Mfc).expect("stage");
+        let mut late = clean.clone();
+        let ts = config.timing.control_period();
+        let at = |k: usize| SensorEstimate {
+            angle: 0.1 * (k as f64 * ts).sin(),
+            velocity: 0.1 * (k as f64 * ts).cos(),
+            ..SensorEstimate::default()
+        };
+        let nan = SensorEstimate {
+            angle: f64::NAN,
+            velocity: f64::NAN,
+            ..SensorEstimate::default()
+        };
+        let none = FrictionOutput::default();
+        late.process(0.0, &nan, none);
+        for k in 1..500 {
+            let time = k as f64 * ts;
+            let expected = clean.process(time, &at(k), none).output;
+            let output = late.process(time, &at(k), none).output;
+            assert!(output.is_finite());
+            assert!(
+                (output - expected).abs() < 1e-9,
+                "period {k}: {output} against {expected}"
+            );
+        }
     }
 }
