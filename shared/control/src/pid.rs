@@ -129,8 +129,13 @@ impl Pid {
     }
 
     /// Bumpless start: sets the integrator so that, for this `error` and
-    /// `feedforward`, the output is `output`.
+    /// `feedforward`, the output is `output`. Non-finite inputs (an invalid
+    /// reading) leave the state as it is: a NaN integrator would never
+    /// recover.
     pub fn initialize_output(&mut self, output: f64, error: f64, feedforward: f64) {
+        if !(output.is_finite() && error.is_finite() && feedforward.is_finite()) {
+            return;
+        }
         let p = &self.params;
         let output = output.clamp(p.output_min, p.output_max);
         self.derivative = 0.0;
@@ -227,6 +232,8 @@ mod tests {
     fn initialize_output_is_bumpless() {
         let mut c = pid(2.0, 5.0, 0.0);
         c.initialize_output(0.37, 0.1, 0.05);
+        // An invalid reading's NaN changes nothing.
+        c.initialize_output(0.37, f64::NAN, 0.05);
         assert!((c.update(0.1, 0.05) - 0.37).abs() < 1e-12);
     }
 

@@ -37,9 +37,13 @@ impl FadingTransfer {
     }
 
     /// While standing by: after this period's [`FadingTransfer::apply`],
-    /// the offset that makes the output the running one's.
+    /// the offset that makes the output the running one's. A non-finite
+    /// one is no output to take over, and a NaN offset would never fade.
     pub fn track(&mut self, running: f64) {
-        self.offset = running - self.own;
+        let offset = running - self.own;
+        if offset.is_finite() {
+            self.offset = offset;
+        }
     }
 
     /// A start from a running loop: the next output is `output` where the
@@ -70,5 +74,7 @@ mod tests {
             last = transfer.apply(0.2);
         }
         assert!((last - 0.2).abs() < 0.3 * (-9.9f64).exp(), "{last}");
+        transfer.track(f64::NAN);
+        assert!(transfer.apply(0.2).is_finite(), "a NaN taken over would never fade");
     }
 }
