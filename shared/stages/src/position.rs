@@ -112,17 +112,21 @@ impl PositionStage {
     pub fn track(&mut self, output: f64, time: f64, sensor: &SensorEstimate, friction: FrictionOutput) {
         let friction = self.feedforward(friction);
         let reference = self.trajectory.sample(time);
-        match &mut self.outer {
-            OuterLoop::Pid(pid) => pid.initialize_output(output, reference.angle - sensor.angle, friction),
-            // A standby MFC has started (and initialized its model) on its
-            // first period; from then on its model runs on.
-            OuterLoop::Mfc(mfc) if self.started => mfc.track(output),
-            OuterLoop::Mfc(mfc) => {
-                self.started = mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction);
-                return;
+        self.started = match &mut self.outer {
+            OuterLoop::Pid(pid) => {
+                pid.initialize_output(output, reference.angle - sensor.angle, friction);
+                true
             }
-        }
-        self.started = true;
+            // A standby MFC has started (and initialized its model) on its
+            // first valid period; from then on its model runs on.
+            OuterLoop::Mfc(mfc) if self.started => {
+                mfc.track(output);
+                true
+            }
+            OuterLoop::Mfc(mfc) => {
+                mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction)
+            }
+        };
     }
 }
 
