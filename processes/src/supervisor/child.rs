@@ -67,7 +67,7 @@ pub struct Supervised {
     started_at: Instant,
     /// When it was last spawned, on the samples' clock: an answer stamped
     /// before it came from the process it replaced.
-    pub spawned_ns: u64,
+    spawned_ns: u64,
     backoff: Duration,
     restart_at: Option<Instant>,
     /// Last time its output advanced.
@@ -121,6 +121,13 @@ impl Supervised {
         self.child.is_some()
     }
 
+    /// Whether an answer stamped `time_ns` came from the process running
+    /// now: not from one it replaced, nor, while it is down, from the one
+    /// just killed (a sample published before it died, read only later).
+    pub fn answered_by_current(&self, time_ns: u64) -> bool {
+        self.is_running() && time_ns >= self.spawned_ns
+    }
+
     pub fn uptime(&self, now: Instant) -> Duration {
         now.saturating_duration_since(self.started_at)
     }
@@ -134,6 +141,8 @@ impl Supervised {
             command.arg("--variant").arg(variant);
         }
         command.args(extra_args);
+        // Stamped before it can publish: all its answers come after.
+        let spawned_ns = hydractl_bus::clock::now_ns();
         let child = command
             .env(PREFIX_ENV, scope.prefix())
             .stdin(Stdio::null())
@@ -152,7 +161,7 @@ impl Supervised {
         self.child = Some(child);
         let now = Instant::now();
         self.started_at = now;
-        self.spawned_ns = hydractl_bus::clock::now_ns();
+        self.spawned_ns = spawned_ns;
         self.last_output = now;
         self.restart_at = None;
         Ok(())
@@ -301,6 +310,12 @@ mod tests {
         assert_eq!(s.backoff, Duration::from_millis(10));
         assert!(!s.restart_due(now));
         assert!(s.restart_due(now + Duration::from_secs(3)));
+    }
+
+    #[test]
+    fn while_it_is_down_no_answer_is_its_successors() {
+        let s = Supervised::new("torque", Path::new("/nonexistent"), None);
+        assert!(!s.answered_by_current(u64::MAX));
     }
 
     #[test]

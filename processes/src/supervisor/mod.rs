@@ -244,8 +244,8 @@ impl Supervisor {
                 // Back after a fault: the fault's account is complete. An
                 // answer the killed process published before it died, read
                 // only now, is not its successor's (it closed a limit
-                // cycle's 500 ms wait as 11 ms).
-                let from_successor = answer.time_ns >= children[i].spawned_ns;
+                // cycle's 500 ms wait as 11 ms, and an 8 s one as 14 ms).
+                let from_successor = children[i].answered_by_current(answer.time_ns);
                 if let Some(fault) = faults[i].take_if(|_| from_successor) {
                     swaps.publish_fault(children[i].name, fault, Some(now))?;
                 }
