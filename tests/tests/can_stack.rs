@@ -4,7 +4,8 @@
 //! leaves the valve in hold with an EMCY and its restart brings the valve
 //! back to Active; a silent encoder is a lost machine and the loop falls
 //! back to the simulated plant, the real valve left neutral; the vehicle's
-//! config here is refused with the reason. A listener of the test's own
+//! config here is refused with the reason; a loop whose first readings
+//! are invalid (late PDOs) starts on the first valid one. A listener of the test's own
 //! on the bus sees every frame.
 
 use std::path::{Path, PathBuf};
@@ -359,4 +360,28 @@ fn a_late_encoder_pdo_makes_the_reading_invalid_and_is_never_waited_for() {
     let cycles = summary["cycles"].as_u64().expect("cycles");
     assert!(cycles >= 5500, "{cycles} cycles in 6 s");
     assert_eq!(summary["plant"], "machine", "a late PDO is not a lost machine");
+}
+
+#[test]
+fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
+    let _turn = serial();
+    let scope = unique_scope("can_late_start");
+    let dir = scratch_dir("can_late_start");
+    // The encoder's TPDO crosses after the master's deadline from the
+    // wire's start until 1.5 s: the loop's first readings (a node still
+    // starting, a late first PDO) carry no angle. A model-following loop
+    // started on one held its output for the whole run and the plant
+    // never moved: tracking error rms 0.17 rad, the reference's own.
+    let config = config(
+        &dir,
+        "can.toml",
+        "[can.faults]\nafter_s = 0.0\nuntil_s = 1.5\ndelay_cob_id = 0x1A0\ndelay_us = 650\n",
+    );
+    let summary = run_config_for(&scope, &dir, &config, "8");
+    let late = summary["can"]["late_pdos"].as_u64().expect("late");
+    assert!(late >= 300, "the loop ran through the late PDOs: {late} late");
+    assert_eq!(summary["plant"], "machine", "late PDOs are not a lost machine");
+    let rms = rms_of(&summary);
+    eprintln!("{late} late PDOs, tracking error rms {rms:.4} rad");
+    assert!(rms < 0.05, "tracking error rms {rms} rad: {summary}");
 }
