@@ -187,9 +187,15 @@ fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor
             .map_err(|e| draw(e.to_string()))?
             .label(*name)
             .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 12, y + 4)], color.filled()));
+            // Centred over its bar and standing on it, not overlapping its top.
+            let value_style =
+                TextStyle::from(("sans-serif", 11).into_font()).pos(plotters::style::text_anchor::Pos::new(
+                    plotters::style::text_anchor::HPos::Center,
+                    plotters::style::text_anchor::VPos::Bottom,
+                ));
             c.draw_series(values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, v)| {
-                let x = i as f64 + offset;
-                Text::new(format!("{v:.3}"), (x, *v + 0.02 * top), ("sans-serif", 11))
+                let x = i as f64 + offset + width * 0.45;
+                Text::new(format!("{v:.4}"), (x, *v + 0.01 * top), value_style.clone())
             }))
             .map_err(|e| draw(e.to_string()))?;
         }
