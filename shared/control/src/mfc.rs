@@ -120,6 +120,11 @@ impl Mfc {
         self.output = output;
     }
 
+    /// The torque the forward model says the motion takes: Ĵ·a + b̂·v.
+    pub fn inverse_dynamics(&self, acceleration: f64, velocity: f64) -> f64 {
+        self.params.j_hat * acceleration + self.params.b_hat * velocity
+    }
+
     /// Bumpless start from a running loop: the model starts where the plant
     /// is, PID A at zero, and PID B so that the next output is `output`.
     /// Only on finite inputs, and says whether it started: a model started

@@ -30,7 +30,6 @@ pub struct PositionStage {
     variant: PositionVariant,
     trajectory: Trajectory,
     outer: OuterLoop,
-    mfc_model: Option<(f64, f64)>,
     started: bool,
 }
 
@@ -50,13 +49,11 @@ impl PositionStage {
                 Mfc::new(outer.mfc, ts).map_err(in_section(config.control.outer_section(OuterPart::Mfc)))?,
             ),
         };
-        let mfc = &config.control.outer().mfc;
         Ok(Self {
             structure: config.control.structure,
             variant,
             trajectory: config.trajectory.clone(),
             outer,
-            mfc_model: Some((mfc.j_hat, mfc.b_hat)),
             started: false,
         })
     }
@@ -81,12 +78,12 @@ impl PositionStage {
             // mid-run would otherwise begin with its model a whole motion
             // away. The output starts at the model's inverse dynamics; an
             // invalid reading (a late CAN PDO's NaN) starts nothing.
-            self.started = match (&mut self.outer, self.mfc_model) {
-                (OuterLoop::Mfc(mfc), Some((j_hat, b_hat))) => {
-                    let output = j_hat * reference.acceleration + b_hat * reference.velocity + friction;
+            self.started = match &mut self.outer {
+                OuterLoop::Mfc(mfc) => {
+                    let output = mfc.inverse_dynamics(reference.acceleration, reference.velocity) + friction;
                     mfc.initialize_output(output, reference.angle, sensor.angle, sensor.velocity, friction)
                 }
-                _ => true,
+                OuterLoop::Pid(_) => true,
             };
         }
         let output = match &mut self.outer {
