@@ -19,8 +19,8 @@ pub fn named_first_within(diagnosis: &Diagnosis, hidden: Hidden, tolerance: f64)
         .take(3)
         .map(|c| {
             format!(
-                "{} (t {:.1} / {:.1}, {:?})",
-                c.effect, c.statistic, c.threshold, c.params
+                "{} ({} {:.1} / {:.1}, {:?})",
+                c.effect, c.test, c.statistic, c.threshold, c.params
             )
         })
         .collect();
