@@ -314,8 +314,25 @@ mod tests {
 
     #[test]
     fn while_it_is_down_no_answer_is_its_successors() {
-        let s = Supervised::new("torque", Path::new("/nonexistent"), None);
-        assert!(!s.answered_by_current(u64::MAX));
+        let never_started = Supervised::new("torque", Path::new("/nonexistent"), None);
+        assert!(!never_started.answered_by_current(u64::MAX));
+        let scope = RunScope::new("childtest").expect("scope");
+        let mut s = Supervised::new("sleep", Path::new("/bin"), None);
+        let before_spawn = hydractl_bus::clock::now_ns();
+        s.spawn(&scope, &["30".to_owned()]).expect("sleep starts");
+        let last_answer = hydractl_bus::clock::now_ns();
+        assert!(s.answered_by_current(last_answer));
+        assert!(!s.answered_by_current(before_spawn), "its predecessor's");
+        s.kill_hung();
+        // Its last sample, read only after it was killed, during its back-off.
+        assert!(!s.answered_by_current(last_answer));
+        s.spawn(&scope, &["30".to_owned()]).expect("sleep starts again");
+        assert!(
+            !s.answered_by_current(last_answer),
+            "the killed one's, not the successor's"
+        );
+        assert!(s.answered_by_current(hydractl_bus::clock::now_ns()));
+        s.kill_hung();
     }
 
     #[test]
