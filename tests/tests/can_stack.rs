@@ -368,18 +368,21 @@ fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     let scope = unique_scope("can_late_start");
     let dir = scratch_dir("can_late_start");
     // The encoder's TPDO crosses after the master's deadline from the
-    // wire's start until 1.5 s: the loop's first readings (a node still
+    // wire's start until 2 s: the loop's first readings (a node still
     // starting, a late first PDO) carry no angle. A model-following loop
     // started on one held its output for the whole run and the plant
-    // never moved: tracking error rms 0.17 rad, the reference's own.
+    // never moved (here 0.117 rad rms with the torque loop limit-cycling;
+    // the reference's own rms is 0.17). The window counts from the wire's
+    // start, before the loop's: on a slow machine the loop sees less of it.
     let config = config(
         &dir,
         "can.toml",
-        "[can.faults]\nafter_s = 0.0\nuntil_s = 1.5\ndelay_cob_id = 0x1A0\ndelay_us = 650\n",
+        "[can.faults]\nafter_s = 0.0\nuntil_s = 2.0\ndelay_cob_id = 0x1A0\ndelay_us = 650\n",
     );
     let summary = run_config_for(&scope, &dir, &config, "8");
     let late = summary["can"]["late_pdos"].as_u64().expect("late");
-    assert!(late >= 300, "the loop ran through the late PDOs: {late} late");
+    // The loop started within the window, so its first readings were late.
+    assert!(late >= 100, "the loop ran through the late PDOs: {late} late");
     assert_eq!(summary["plant"], "machine", "late PDOs are not a lost machine");
     let rms = rms_of(&summary);
     eprintln!("{late} late PDOs, tracking error rms {rms:.4} rad");
