@@ -42,6 +42,25 @@ fn config(dir: &Path, name: &str, extra: &str) -> PathBuf {
     path
 }
 
+/// A run of `config/can.toml` whose wire holds the encoder's TPDO 650 µs
+/// before it contends, from `after_s` to `until_s` of its life (and does
+/// what `more_faults` adds): it crosses after the master's 800 µs deadline
+/// but before the next SYNC, so each of those readings is invalid.
+fn run_with_late_encoder(
+    name: &str,
+    after_s: f64,
+    until_s: f64,
+    more_faults: &str,
+    duration_s: &str,
+) -> serde_json::Value {
+    let scope = unique_scope(name);
+    let dir = scratch_dir(name);
+    let faults = format!(
+        "[can.faults]\nafter_s = {after_s:?}\nuntil_s = {until_s:?}\ndelay_cob_id = 0x1A0\ndelay_us = 650\n{more_faults}"
+    );
+    run_config_for(&scope, &dir, &config(&dir, "can.toml", &faults), duration_s)
+}
+
 /// Every frame on the virtual bus `vcan0` with the time its last bit
 /// crossed, heard by a station of the test's own.
 struct BusTap {
@@ -329,17 +348,9 @@ fn the_bus_is_recorded_frame_for_frame_as_can_msgs_frame_and_exported_as_candump
 #[test]
 fn a_late_encoder_pdo_makes_the_reading_invalid_and_is_never_waited_for() {
     let _turn = serial();
-    let scope = unique_scope("can_late");
-    let dir = scratch_dir("can_late");
-    // From 3 s to 4 s of the wire's life the encoder's TPDO waits 650 µs
-    // before it contends: it crosses after the master's 800 µs deadline
-    // but before the next SYNC. Five transmissions are destroyed too.
-    let config = config(
-        &dir,
-        "can.toml",
-        "[can.faults]\nafter_s = 3.0\nuntil_s = 4.0\ndelay_cob_id = 0x1A0\ndelay_us = 650\nerror_frames = 5\n",
-    );
-    let summary = run_config_for(&scope, &dir, &config, "6");
+    // From 3 s to 4 s of the wire's life the encoder's PDOs are late; five
+    // transmissions are destroyed too.
+    let summary = run_with_late_encoder("can_late", 3.0, 4.0, "error_frames = 5\n", "6");
     let c = &summary["can"];
     let late = c["late_pdos"].as_u64().expect("late");
     // Most of the second's PDOs; one that an ECU answered late enough to
@@ -365,21 +376,14 @@ fn a_late_encoder_pdo_makes_the_reading_invalid_and_is_never_waited_for() {
 #[test]
 fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     let _turn = serial();
-    let scope = unique_scope("can_late_start");
-    let dir = scratch_dir("can_late_start");
-    // The encoder's TPDO crosses after the master's deadline from the
-    // wire's start until 2 s: the loop's first readings (a node still
-    // starting, a late first PDO) carry no angle. A model-following loop
-    // started on one held its output for the whole run and the plant
-    // never moved (here 0.117 rad rms with the torque loop limit-cycling;
-    // the reference's own rms is 0.17). The window counts from the wire's
-    // start, before the loop's: on a slow machine the loop sees less of it.
-    let config = config(
-        &dir,
-        "can.toml",
-        "[can.faults]\nafter_s = 0.0\nuntil_s = 2.0\ndelay_cob_id = 0x1A0\ndelay_us = 650\n",
-    );
-    let summary = run_config_for(&scope, &dir, &config, "8");
+    // The encoder's PDOs are late from the wire's start until 2 s: the
+    // loop's first readings (a node still starting, a late first PDO)
+    // carry no angle. A model-following loop started on one held its
+    // output for the whole run and the plant never moved (here 0.117 rad
+    // rms with the torque loop limit-cycling; the reference's own rms is
+    // 0.17). The window counts from the wire's start, before the loop's:
+    // on a slow machine the loop sees less of it.
+    let summary = run_with_late_encoder("can_late_start", 0.0, 2.0, "", "8");
     let late = summary["can"]["late_pdos"].as_u64().expect("late");
     // The loop started within the window, so its first readings were late.
     assert!(late >= 100, "the loop ran through the late PDOs: {late} late");
