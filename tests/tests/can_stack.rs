@@ -390,5 +390,6 @@ fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     assert_eq!(summary["plant"], "machine", "late PDOs are not a lost machine");
     let rms = rms_of(&summary);
     eprintln!("{late} late PDOs, tracking error rms {rms:.4} rad");
-    assert!(rms < 0.05, "tracking error rms {rms} rad: {summary}");
+    // 0.036-0.038 here; half the broken start's 0.117, for a loaded machine.
+    assert!(rms < 0.06, "tracking error rms {rms} rad: {summary}");
 }
