@@ -299,18 +299,27 @@ impl Observer {
     }
 
     /// The RMS of reference minus angle over `window`, from the outer
-    /// loop's samples, one every 5 ms.
+    /// loop's samples, one every 5 ms. An invalid reading (a CAN PDO past
+    /// its deadline) has no angle to compare: it is left out.
     pub fn tracking_rms(&self, window: Duration) -> f64 {
         let deadline = Instant::now() + window;
         let (mut sum, mut count) = (0.0, 0usize);
         while Instant::now() < deadline {
             if let Ok(Some(p)) = self.position.latest() {
-                sum += (p.reference_angle - p.angle).powi(2);
-                count += 1;
+                let error = p.reference_angle - p.angle;
+                if error.is_finite() {
+                    sum += error.powi(2);
+                    count += 1;
+                }
             }
             std::thread::sleep(Duration::from_millis(5));
         }
-        (sum / count.max(1) as f64).sqrt()
+        // No valid sample in the window: NaN, which no bound passes.
+        if count == 0 {
+            f64::NAN
+        } else {
+            (sum / count as f64).sqrt()
+        }
     }
 }
 

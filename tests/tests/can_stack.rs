@@ -404,8 +404,9 @@ fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     );
     // Past the start's catch-up (the reference moved while the plant was
     // held), it tracks as a loop that never saw an invalid reading: 0.028
-    // rad rms on CAN over a whole run, 0.17 for a plant that never moves.
-    std::thread::sleep(Duration::from_secs(1));
+    // rad rms on CAN over a whole run (0.023-0.044 over these 4 s here),
+    // 0.229 on the code that started on a NaN.
+    std::thread::sleep(Duration::from_secs(2));
     let tracking = observer.tracking_rms(Duration::from_secs(4));
     signal(run.id(), Signal::SIGTERM);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
@@ -415,5 +416,5 @@ fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     // The loop started within the window, so its first readings were late.
     assert!(late >= 100, "the loop ran through the late PDOs: {late} late");
     assert_eq!(summary["plant"], "machine", "late PDOs are not a lost machine");
-    assert!(tracking < 0.05, "tracking error rms {tracking} rad: {summary}");
+    assert!(tracking < 0.08, "tracking error rms {tracking} rad: {summary}");
 }
