@@ -162,6 +162,13 @@ impl SummarizedRun {
         Self { run, summary }
     }
 
+    /// The same, on `config`.
+    pub fn with_config(scope: &RunScope, dir: &Path, config: &Path, duration_s: &str) -> Self {
+        let summary = dir.join("summary.json");
+        let run = start_run(scope, &config_run_args(config, duration_s, &summary));
+        Self { run, summary }
+    }
+
     /// SIGTERM, a clean exit; the run's summary.
     pub fn finish(mut self) -> serde_json::Value {
         signal(self.run.id(), nix::sys::signal::Signal::SIGTERM);
@@ -170,20 +177,25 @@ impl SummarizedRun {
     }
 }
 
+/// `--config CONFIG --duration S --summary-json SUMMARY`, for `hydractl run`.
+fn config_run_args<'a>(config: &'a Path, duration_s: &'a str, summary: &'a Path) -> [&'a str; 6] {
+    [
+        "--config",
+        config.to_str().expect("path"),
+        "--duration",
+        duration_s,
+        "--summary-json",
+        summary.to_str().expect("path"),
+    ]
+}
+
 /// `hydractl run --config CONFIG --duration S --summary-json DIR/summary.json`
 /// to its end (within a minute more), which must succeed; its summary.
 pub fn run_config_for(scope: &RunScope, dir: &Path, config: &Path, duration_s: &str) -> serde_json::Value {
     let summary = dir.join("summary.json");
     let out = run_to_end(
         scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            duration_s,
-            "--summary-json",
-            summary.to_str().expect("path"),
-        ],
+        &config_run_args(config, duration_s, &summary),
         Duration::from_secs(60) + Duration::from_secs_f64(duration_s.parse().expect("seconds")),
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));

@@ -383,19 +383,8 @@ fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     let scope = unique_scope("can_late_start");
     let dir = scratch_dir("can_late_start");
     let config = late_encoder_config(&dir, 0.0, 2.0, "");
-    let summary_path = dir.join("summary.json");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            "30",
-            "--summary-json",
-            summary_path.to_str().expect("path"),
-        ],
-    );
+    let run = SummarizedRun::with_config(&scope, &dir, &config, "30");
     // Started on the first valid reading, the loop drives the valve: a
     // loop started on a NaN never does (the valve rejects its commands).
     assert!(
@@ -408,9 +397,7 @@ fn a_loop_whose_first_readings_are_invalid_starts_on_the_first_valid_one() {
     // 0.229 on the code that started on a NaN.
     std::thread::sleep(Duration::from_secs(2));
     let tracking = observer.tracking_rms(Duration::from_secs(4));
-    signal(run.id(), Signal::SIGTERM);
-    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
-    let summary = read_json(&summary_path);
+    let summary = run.finish();
     let late = summary["can"]["late_pdos"].as_u64().expect("late");
     eprintln!("{late} late PDOs, then tracking error rms {tracking:.4} rad over 4 s");
     // The loop started within the window, so its first readings were late.
