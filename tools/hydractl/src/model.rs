@@ -292,7 +292,7 @@ fn compare(args: CompareArgs) -> Result<()> {
     text += "\nresidual tests (99% bounds):\n";
     for t in &comparison.residual_tests {
         text += &format!(
-            "  {:<6} {:<20} max |r| {:.3} at lag {:>3} (bound {:.3}): {}\n",
+            "  {:<6} {:<21} max |r| {:.3} at lag {:>3} (bound {:.3}): {}\n",
             t.output,
             t.test,
             t.max_abs,
@@ -302,8 +302,8 @@ fn compare(args: CompareArgs) -> Result<()> {
         );
     }
     text += "  autocorrelation: an output-error model leaves its sensors' filtered noise in the residual, \
-             white or not; cross_correlation_u: lags ≥ 1 judged (at ≤ 0 the controller answers the residual), \
-             Bartlett's bound\n";
+             white or not; cross_correlation_u (or _tau, the torque driving a record without a valve command): \
+             lags ≥ 1 judged (at ≤ 0 the controller answers the residual), Bartlett's bound\n";
     emit(&text)
 }
 

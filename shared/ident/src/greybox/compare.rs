@@ -44,7 +44,9 @@ pub struct RegimeScore {
 #[derive(Debug, Clone, Serialize)]
 pub struct CorrelationTest {
     pub output: String,
-    /// `autocorrelation` (whiteness) or `cross_correlation_u`.
+    /// `autocorrelation` (whiteness), or `cross_correlation_u` with the
+    /// valve command (`cross_correlation_tau` with the driving torque, in a
+    /// record without one).
     pub test: String,
     /// ± this is the 99% band a correct model's residual stays within:
     /// for the cross-correlation, Bartlett's, from both signals' own
@@ -141,7 +143,7 @@ pub fn compare(plant: &PlantParams, effects: &Effects, signals: &Signals, estima
         outputs,
         submodels,
         regimes: regimes(signals, &prediction, validation.clone()),
-        residual_tests: residual_tests(signals, &prediction, validation.clone()),
+        residual_tests: residual_tests(plant, signals, &prediction, validation.clone()),
         prediction,
         validation,
     }
@@ -274,21 +276,37 @@ fn regimes(signals: &Signals, prediction: &Prediction, validation: Range<usize>)
 /// - its residual is the sensors' noise through their filters plus each
 ///   segment's start, coloured for a correct model too: the
 ///   autocorrelation is shown against a white residual's band, not judged;
-/// - the cross-correlation with the command is judged at lags ≥ 1 only
+/// - the cross-correlation with the model's input (the command, or without
+///   one the torque that drives the rigid body) is judged at lags ≥ 1 only
 ///   (the residual against earlier commands: what the model should have
 ///   explained); at lags ≤ 0 the controller answers the residual, as any
 ///   closed loop does;
 /// - its band is Bartlett's, var r(τ) = (1/N) Σ_m ρ_ee(m) ρ_uu(m), summed
 ///   over one segment's lags (segments start afresh, so the residual does
 ///   not correlate further): both signals' own correlation widens it.
-fn residual_tests(signals: &Signals, prediction: &Prediction, validation: Range<usize>) -> Vec<CorrelationTest> {
+fn residual_tests(
+    plant: &PlantParams,
+    signals: &Signals,
+    prediction: &Prediction,
+    validation: Range<usize>,
+) -> Vec<CorrelationTest> {
     let n = validation.len();
     let white_bound = CONFIDENCE_Z / (n as f64).sqrt();
     let centred = |x: Vec<f64>| {
         let mean = x.iter().sum::<f64>() / x.len().max(1) as f64;
         x.into_iter().map(|v| v - mean).collect::<Vec<f64>>()
     };
-    let u = centred(signals.u[validation.clone()].to_vec());
+    // A record without a valve command is driven by a torque, measured or
+    // from the pressures: the residual is judged against that.
+    let (input, test_name) = if signals.has_command {
+        (signals.u[validation.clone()].to_vec(), "cross_correlation_u")
+    } else {
+        (
+            validation.clone().map(|k| signals.torque(plant, k)).collect(),
+            "cross_correlation_tau",
+        )
+    };
+    let u = centred(input);
     let segment = ((super::SEGMENT_S / signals.dt).round() as usize).clamp(1, n.saturating_sub(1).max(1));
     let u_auto = autocorrelation(&u, segment);
     let mut out = Vec::new();
@@ -318,15 +336,8 @@ fn residual_tests(signals: &Signals, prediction: &Prediction, validation: Range<
         let cross: Vec<f64> = (-(MAX_LAG as i64)..=MAX_LAG as i64)
             .map(|lag| correlation(&e, &u, lag))
             .collect();
-        let mut against_u = test(
-            output,
-            "cross_correlation_u",
-            bound,
-            -(MAX_LAG as i64),
-            cross,
-            MAX_LAG + 1,
-        );
-        against_u.note = "lags ≥ 1 judged (earlier commands the model should have explained); at lags ≤ 0 the \
+        let mut against_u = test(output, test_name, bound, -(MAX_LAG as i64), cross, MAX_LAG + 1);
+        against_u.note = "lags ≥ 1 judged (earlier inputs the model should have explained); at lags ≤ 0 the \
                           controller answers the residual; Bartlett's band from both signals' autocorrelation, wide when the \
                           residual is strongly coloured, so that `diagnose` is the sharper test of a missing effect"
             .to_owned();
