@@ -16,7 +16,8 @@ pub const LOAD_ANGLE: usize = 2;
 pub const LOAD_VELOCITY: usize = 3;
 
 /// Everything acting on the actuator's rotor except Coulomb friction, N·m,
-/// given the hydraulic torque D (p_a − p_b).
+/// given the hydraulic torque D (p_a − p_b): less viscous friction, the
+/// load (coupled or hanging) and the constant load torque.
 #[inline]
 pub fn net_torque(params: &PlantParams, effects: &Effects, motion: &Motion, hydraulic_torque: f64) -> f64 {
     let viscous = params.viscous_friction * motion[VELOCITY];
@@ -27,7 +28,7 @@ pub fn net_torque(params: &PlantParams, effects: &Effects, motion: &Motion, hydr
         ),
         None => effects.gravity_load.map_or(0.0, |g| g.torque(motion[ANGLE])),
     };
-    hydraulic_torque - viscous - load
+    hydraulic_torque - viscous - load - params.load_torque
 }
 
 /// The motion's rates; `direction` is the friction direction frozen for the

@@ -49,6 +49,12 @@ pub struct PlantParams {
     /// hydraulic-mechanical mode lightly damped (ζ ≈ 0.1): the oscillation
     /// both papers measure under position-only control.
     pub viscous_friction: f64,
+    /// A constant torque against positive rotation, N·m: a hose's drag, the
+    /// mean of a load hanging off-centre, or the zero offset of the torque
+    /// the model is driven by (a pressure transducer's, a torque sensor's).
+    /// Zero on the data sheet; model identification fits it with the rigid
+    /// body, as a real axis seldom has none.
+    pub load_torque: f64,
 }
 
 impl Default for PlantParams {
@@ -67,6 +73,7 @@ impl Default for PlantParams {
             valve_damping: 0.3,
             inertia: 20.0,
             viscous_friction: 17.0,
+            load_torque: 0.0,
         }
     }
 }
@@ -99,6 +106,9 @@ impl PlantParams {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(PlantError::invalid(name, value, "must be non-negative and finite"));
             }
+        }
+        if !self.load_torque.is_finite() {
+            return Err(PlantError::invalid("load_torque", self.load_torque, "must be finite"));
         }
         if self.tank_pressure >= self.supply_pressure {
             return Err(PlantError::invalid(
