@@ -43,8 +43,11 @@ fn dataset(data: ForeignData, sensors: Sensors, every: usize) -> Dataset {
 
 fn diagnosed(seed: u64, hidden: Option<Hidden>, sensors: Sensors, every: usize) -> Diagnosis {
     let data = foreign_plant(seed, hidden, 60.0);
+    let description = data.description.clone();
     let signals = Signals::from_dataset(&dataset(data, sensors, every)).expect("valid signals");
-    diagnose(&signals, None, FitOptions::default()).expect("diagnoses")
+    let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
+    common::no_null_effect_beats_the_baseline(&diagnosis, &description);
+    diagnosis
 }
 
 fn significant(diagnosis: &Diagnosis) -> Vec<(&str, &str)> {

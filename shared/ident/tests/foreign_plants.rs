@@ -29,36 +29,8 @@ fn diagnosed(seed: u64, hidden: Option<Hidden>) -> Diagnosis {
     );
     let signals = Signals::from_dataset(&dataset).expect("valid signals");
     let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
-    no_null_effect_beats_the_baseline(&diagnosis, &data.description);
+    common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
     diagnosis
-}
-
-/// An effect fitted at its null value is the baseline: it may not remove
-/// any error, let alone be called significant.
-fn no_null_effect_beats_the_baseline(diagnosis: &Diagnosis, plant: &str) {
-    for c in &diagnosis.candidates {
-        let main = |key: &str| c.params.get(key).copied().unwrap_or(f64::NAN);
-        let null = match c.effect.as_str() {
-            // A band of no width centred off zero is still a valve's null
-            // offset, not the baseline.
-            "deadzone" => main("width") < 1e-6 && main("offset").abs() < 1e-6,
-            "backlash" => main("width") < 1e-6,
-            "time_delay" => main("delay_s") < 1e-7,
-            "asymmetric_gain" => (main("ratio") - 1.0).abs() < 1e-6,
-            "saturation" => main("limit") >= 1.0 - 1e-9,
-            _ => false,
-        };
-        if null {
-            assert!(
-                !c.significant && c.score <= 1e-6,
-                "{plant}: `{}` at its null value ({:?}) beats the baseline: {} → {}",
-                c.effect,
-                c.params,
-                c.validation_nrmse_before,
-                c.validation_nrmse_after
-            );
-        }
-    }
 }
 
 fn nothing_significant(seed: u64) {

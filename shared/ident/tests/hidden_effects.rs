@@ -4,7 +4,9 @@
 //! the hidden effect first and call it significant (and call nothing
 //! significant when there is none), adding it must at least halve its
 //! output's validation NRMSE, and its main parameter must come out within
-//! 20% of the truth.
+//! 20% of the truth. No effect at its null value may beat the baseline.
+
+mod common;
 
 use hydractl_config::Config;
 use hydractl_ident::greybox::{diagnose, FitOptions, Signals};
@@ -40,6 +42,7 @@ fn hidden(spec: &str, seed: u64) {
     let kind = truth.kind();
     let signals = closed_loop_data(Some(spec), seed);
     let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
+    common::no_null_effect_beats_the_baseline(&diagnosis, &format!("{spec}, seed {seed}"));
     let first = &diagnosis.candidates[0];
     let ranking: Vec<(&str, f64, bool)> = diagnosis
         .candidates
@@ -74,6 +77,7 @@ fn hidden(spec: &str, seed: u64) {
 fn no_hidden_effect_nothing_significant() {
     let signals = closed_loop_data(None, 2);
     let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
+    common::no_null_effect_beats_the_baseline(&diagnosis, "no effect, seed 2");
     let significant: Vec<&str> = diagnosis
         .candidates
         .iter()
