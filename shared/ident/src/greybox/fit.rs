@@ -135,8 +135,8 @@ fn baseline_knobs(part: Part, signals: &Signals) -> Vec<Free> {
 /// (on a measured linear axis, a 3 N offset of 150 N hid its Coulomb
 /// friction: t 0.5 against 3.4, 6.5 with it). From the pressures it is
 /// not fitted: on the foreign plants, whose transducers have no offset, it
-/// slowed diagnose by a fifth and traded two plants' Coulomb friction for
-/// an offset.
+/// slowed diagnose by 4–29 % and traded two plants' Coulomb friction for an
+/// offset.
 fn fits_load_torque(signals: &Signals) -> bool {
     signals.tau.is_some()
 }
