@@ -787,7 +787,7 @@ fn evidence(
         )
     } else if let Some(share) = resolution.filter(|s| *s < RESOLUTION_SHARE) {
         format!(
-            "not a missing effect: the angle moves in steps of {:.5} rad, {:.1}% of its spread, the encoder's own resolution (under {:.0}%); \
+            "not a missing effect: the angle moves in steps of {:.3e} rad, {:.2}% of its spread, the encoder's own resolution (under {:.0}%); \
              modelling the staircase takes the {output} validation NRMSE {before:.4} → {after:.4} ({judged})",
             get("step"),
             100.0 * share,
