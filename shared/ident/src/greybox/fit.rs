@@ -816,10 +816,24 @@ pub(crate) fn fit_effect(
     // much of a missing friction or load, and must give it back before a
     // start can be judged.
     let screening = estimation.start..estimation.start + estimation.len() / 3;
-    let pairs: Vec<(Working, Effect)> = bases(part, &start, signals, estimation.clone())
+    let mut pairs: Vec<(Working, Effect)> = bases(part, &start, signals, estimation.clone())
         .into_iter()
         .flat_map(|b| starts(kind, signals).into_iter().map(move |e| (b.clone(), e)))
         .collect();
+    // Coulomb friction also from the data alone, as inverse dynamics finds
+    // it: on foreign plants a start from the catalog's levels settled at 4–13
+    // N·m of 60 where the body took the rest.
+    if kind == EffectKind::CoulombFriction && part == Part::Mechanical {
+        if let Some(body) = rigid_body_by_equation_error(signals, &start.plant, estimation.clone(), true) {
+            let given = BTreeMap::from([
+                ("coulomb".to_owned(), body.coulomb),
+                ("breakaway".to_owned(), 1.5 * body.coulomb),
+            ]);
+            if let Ok(effect) = Effect::from_params(kind, &given) {
+                pairs.push((body.applied(&start, signals), effect));
+            }
+        }
+    }
     // Each start is screened on its own: in parallel, the first of the
     // lowest kept (as in order).
     let screened: Vec<Option<(f64, Working)>> = pairs
@@ -884,14 +898,8 @@ fn part_knobs(part: Part, model: &Working, adding: Option<EffectKind>, signals: 
 fn bases(part: Part, start: &Working, signals: &Signals, estimation: Range<usize>) -> Vec<Working> {
     let mut bases = vec![start.clone()];
     if part == Part::Mechanical {
-        if let Some(body) = rigid_body_by_equation_error(signals, &start.plant, estimation) {
-            let mut fresh = start.clone();
-            fresh.plant.inertia = body.inertia;
-            fresh.plant.viscous_friction = body.viscous_friction;
-            if fits_load_torque(signals) {
-                fresh.plant.load_torque = body.load_torque;
-            }
-            bases.push(fresh);
+        if let Some(body) = rigid_body_by_equation_error(signals, &start.plant, estimation, false) {
+            bases.push(body.applied(start, signals));
         }
     }
     bases
@@ -969,38 +977,49 @@ const LOW_PASS_HALF_WIDTH_S: f64 = 0.1;
 /// The rigid body by equation error, J ω̇ + b ω + T = D (p_a − p_b) (or the
 /// measured torque), on the smoothed velocity and its smoothed derivative:
 /// a start for the mechanical part that depends on the data only, not on
-/// the prior's guess. `None` when the data does not give a positive J and b.
-fn rigid_body_by_equation_error(signals: &Signals, plant: &PlantParams, range: Range<usize>) -> Option<RigidBody> {
-    // All three through the same low-pass: the equation holds for the
-    // filtered signals too, and the filter keeps out what a rigid body
-    // cannot explain (a flexible load's ringing, the encoder's steps).
+/// the prior's guess. With `coulomb`, F_c sign(ω) is a regressor too, as in
+/// the inverse-dynamics identification of robots and machine tools
+/// (IDIM-LS). `None` when the data does not give a positive J and b.
+fn rigid_body_by_equation_error(
+    signals: &Signals,
+    plant: &PlantParams,
+    range: Range<usize>,
+    coulomb: bool,
+) -> Option<RigidBody> {
+    // All through the same low-pass: the equation holds for the filtered
+    // signals too, and the filter keeps out what a rigid body cannot
+    // explain (a flexible load's ringing, the encoder's steps).
     let low_pass = |x: &[f64]| super::signals::moving_average(x, LOW_PASS_HALF_WIDTH_S, signals.dt);
     let velocity = low_pass(&signals.velocity);
     let acceleration = low_pass(&super::signals::smoothed_slope(&signals.velocity, signals.dt));
     let torque: Vec<f64> = (0..signals.len()).map(|k| signals.torque(plant, k)).collect();
     let torque = low_pass(&torque);
-    // Without a fitted load torque, no constant: the start's J and b are
-    // then those of the model that is fitted.
-    let constant = if fits_load_torque(signals) { 1.0 } else { 0.0 };
-    let mut normal = nalgebra::Matrix3::zeros();
-    let mut projected = nalgebra::Vector3::zeros();
+    // A regressor left out has an empty row and column: its unknown is
+    // pinned at zero. Without a fitted load torque, no constant: the
+    // start's J and b are then those of the model that is fitted.
+    let used = [true, true, coulomb, fits_load_torque(signals)];
+    let mut normal = nalgebra::Matrix4::zeros();
+    let mut projected = nalgebra::Vector4::zeros();
     for k in range {
-        let x = nalgebra::Vector3::new(acceleration[k], velocity[k], constant);
+        let v = velocity[k];
+        let x = nalgebra::Vector4::new(acceleration[k], v, v.signum(), 1.0)
+            .zip_map(&nalgebra::Vector4::from(used.map(f64::from)), |x, u| x * u);
         if x.iter().all(|v| v.is_finite()) && torque[k].is_finite() {
             normal += x * x.transpose();
             projected += x * torque[k];
         }
     }
-    if constant == 0.0 {
-        // The constant's row and column are empty: pin its unknown at zero.
-        normal[(2, 2)] = 1.0;
+    for (i, used) in used.iter().enumerate() {
+        if !used {
+            normal[(i, i)] = 1.0;
+        }
     }
     let solution = normal.lu().solve(&projected)?;
-    let (inertia, viscous_friction, load_torque) = (solution[0], solution[1], solution[2]);
-    (inertia > 0.0 && viscous_friction > 0.0 && solution.iter().all(|v| v.is_finite())).then_some(RigidBody {
-        inertia,
-        viscous_friction,
-        load_torque,
+    (solution[0] > 0.0 && solution[1] > 0.0 && solution.iter().all(|v| v.is_finite())).then_some(RigidBody {
+        inertia: solution[0],
+        viscous_friction: solution[1],
+        coulomb: solution[2],
+        load_torque: solution[3],
     })
 }
 
@@ -1008,5 +1027,20 @@ fn rigid_body_by_equation_error(signals: &Signals, plant: &PlantParams, range: R
 struct RigidBody {
     inertia: f64,
     viscous_friction: f64,
+    /// F_c, where it was a regressor (else 0).
+    coulomb: f64,
     load_torque: f64,
+}
+
+impl RigidBody {
+    /// `start` with this body's parameters.
+    fn applied(&self, start: &Working, signals: &Signals) -> Working {
+        let mut fresh = start.clone();
+        fresh.plant.inertia = self.inertia;
+        fresh.plant.viscous_friction = self.viscous_friction;
+        if fits_load_torque(signals) {
+            fresh.plant.load_torque = self.load_torque;
+        }
+        fresh
+    }
 }
