@@ -11,10 +11,6 @@ use hydractl_ident::greybox::{diagnose, Diagnosis, FitOptions, Part, Signals};
 use hydractl_ident::Dataset;
 use hydractl_sim::foreign::{foreign_plant, ForeignData, Hidden};
 
-/// The displacement the foreign plant turns pressure into torque with,
-/// m³/rad: a torque sensor's reading is D·(p_a − p_b).
-const FOREIGN_DISPLACEMENT: f64 = 5.0e-5;
-
 #[derive(Clone, Copy)]
 enum Sensors {
     /// Valve command and angle.
@@ -28,15 +24,7 @@ fn dataset(data: ForeignData, sensors: Sensors, every: usize) -> Dataset {
     let mut columns = vec![("t", take(&data.t)), ("theta", take(&data.theta))];
     match sensors {
         Sensors::Motion => columns.push(("u", take(&data.u))),
-        Sensors::Torque => {
-            let tau: Vec<f64> = data
-                .p_a_bar
-                .iter()
-                .zip(&data.p_b_bar)
-                .map(|(a, b)| FOREIGN_DISPLACEMENT * (a - b) * 1e5)
-                .collect();
-            columns.push(("tau", take(&tau)));
-        }
+        Sensors::Torque => columns.push(("tau", take(&data.torque_reading()))),
     }
     Dataset::from_columns("foreign", columns)
 }

@@ -104,6 +104,19 @@ pub struct ForeignData {
     pub description: String,
 }
 
+impl ForeignData {
+    /// What a torque sensor on the shaft reads, N·m: the transducers'
+    /// pressure difference through the plant's displacement, with their
+    /// noise and lag, for an axis whose torque is measured.
+    pub fn torque_reading(&self) -> Vec<f64> {
+        self.p_a_bar
+            .iter()
+            .zip(&self.p_b_bar)
+            .map(|(a, b)| Prior::DISPLACEMENT * (a - b) * 1e5)
+            .collect()
+    }
+}
+
 /// The model's prior, which the foreign plant's parameters scatter around
 /// (the values of `[plant]` in `config/sim.toml`).
 struct Prior;

@@ -460,6 +460,21 @@ pub enum ForeignSensors {
     Full,
     /// Valve command and angle: a machine without pressure transducers.
     Motion,
+    /// A measured torque and the angle: an axis whose torque is sensed; the
+    /// valve's effects cannot show, and only the load's are hidden.
+    Torque,
+}
+
+impl ForeignSensors {
+    /// Whether a record of these sensors can show `hidden` at all.
+    fn can_show(self, hidden: Option<hydractl_sim::foreign::Hidden>) -> bool {
+        let Some(hidden) = hidden else { return true };
+        match self {
+            ForeignSensors::Full | ForeignSensors::Motion => true,
+            ForeignSensors::Torque => EffectKind::from_name(hidden.name())
+                .is_ok_and(|kind| greybox::Part::of(kind) == greybox::Part::Mechanical),
+        }
+    }
 }
 
 /// What `bench foreign` simulates and diagnoses.
@@ -477,11 +492,13 @@ pub struct ForeignBench {
 /// sensors give, every `every`-th sample.
 fn foreign_dataset(data: hydractl_sim::foreign::ForeignData, sensors: ForeignSensors, every: usize) -> Dataset {
     let take = |column: Vec<f64>| column.into_iter().step_by(every).collect::<Vec<f64>>();
-    let mut columns = vec![("t", take(data.t)), ("u", take(data.u))];
-    if sensors == ForeignSensors::Full {
-        columns.push(("p_a", take(data.p_a_bar)));
-        columns.push(("p_b", take(data.p_b_bar)));
-    }
+    let driving = match sensors {
+        ForeignSensors::Full => vec![("u", data.u), ("p_a", data.p_a_bar), ("p_b", data.p_b_bar)],
+        ForeignSensors::Motion => vec![("u", data.u)],
+        ForeignSensors::Torque => vec![("tau", data.torque_reading())],
+    };
+    let mut columns = vec![("t", take(data.t))];
+    columns.extend(driving.into_iter().map(|(name, column)| (name, take(column))));
     columns.push(("theta", take(data.theta)));
     Dataset::from_columns("foreign", columns)
 }
@@ -489,7 +506,7 @@ fn foreign_dataset(data: hydractl_sim::foreign::ForeignData, sensors: ForeignSen
 /// A foreign plant's dataset as a CSV file, in the model tools' column
 /// order, for `model diagnose` and other tools.
 fn save_dataset(path: &std::path::Path, dataset: &Dataset) -> Result<()> {
-    let columns: Vec<(&str, &[f64])> = ["t", "u", "p_a", "p_b", "theta"]
+    let columns: Vec<(&str, &[f64])> = ["t", "u", "p_a", "p_b", "tau", "theta"]
         .into_iter()
         .filter_map(|name| dataset.column(name).ok().map(|c| (name, c)))
         .collect();
@@ -569,6 +586,7 @@ pub fn bench_foreign(
     let cases: Vec<Option<Hidden>> = all_cases
         .iter()
         .filter(|c| only.is_empty() || only.contains(&name(c)))
+        .filter(|c| sensors.can_show(**c))
         .copied()
         .collect();
     // A plant's seed depends on its case's place in the whole list, so a
@@ -693,6 +711,7 @@ pub fn bench_foreign(
         match sensors {
             ForeignSensors::Full => "full (u, p_a, p_b, theta)",
             ForeignSensors::Motion => "motion (u, theta)",
+            ForeignSensors::Torque => "torque (tau, theta; the load's effects only)",
         },
         "hidden", "plants", "named first", "param ±25%", "any signif.", "median s"
     );
