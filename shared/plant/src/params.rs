@@ -53,7 +53,7 @@ pub struct PlantParams {
     /// mean of a load hanging off-centre, or the zero offset of the torque
     /// the model is driven by (a pressure transducer's, a torque sensor's).
     /// Zero on the data sheet; model identification fits it with the rigid
-    /// body, as a real axis seldom has none.
+    /// body where the torque is measured, as a real axis seldom has none.
     pub load_torque: f64,
 }
 

@@ -1002,8 +1002,8 @@ fn rigid_body_by_equation_error(
     let mut projected = nalgebra::Vector4::zeros();
     for k in range {
         let v = velocity[k];
-        let x = nalgebra::Vector4::new(acceleration[k], v, v.signum(), 1.0)
-            .zip_map(&nalgebra::Vector4::from(used.map(f64::from)), |x, u| x * u);
+        let regressors = [acceleration[k], v, v.signum(), 1.0];
+        let x = nalgebra::Vector4::from(std::array::from_fn(|i| if used[i] { regressors[i] } else { 0.0 }));
         if x.iter().all(|v| v.is_finite()) && torque[k].is_finite() {
             normal += x * x.transpose();
             projected += x * torque[k];
