@@ -33,6 +33,10 @@ pub enum Hidden {
     Backlash { width: f64 },
     /// The encoder's step, rad.
     Quantization { step: f64 },
+    /// The valve meters turbulently: each edge's flow grows with the
+    /// square root of the pressure across it (the orifice equation), within
+    /// 0.6 % of the linear law's at half the supply. No parameter.
+    OrificeFlow,
 }
 
 impl Hidden {
@@ -47,12 +51,14 @@ impl Hidden {
             Self::GravityLoad { .. } => "gravity_load",
             Self::Backlash { .. } => "backlash",
             Self::Quantization { .. } => "quantization",
+            Self::OrificeFlow => "orifice_flow",
         }
     }
 
-    /// The catalog's key of the main parameter and its true value.
-    pub fn main(&self) -> (&'static str, f64) {
-        match *self {
+    /// The catalog's key of the main parameter and its true value; `None`
+    /// for an effect without a parameter, where naming it is all.
+    pub fn main(&self) -> Option<(&'static str, f64)> {
+        Some(match *self {
             Self::Deadzone { width, .. } => ("width", width),
             Self::Saturation { limit } => ("limit", limit),
             Self::TimeDelay { seconds } => ("delay_s", seconds),
@@ -61,12 +67,13 @@ impl Hidden {
             Self::GravityLoad { amplitude, .. } => ("amplitude", amplitude),
             Self::Backlash { width } => ("width", width),
             Self::Quantization { step } => ("step", step),
-        }
+            Self::OrificeFlow => return None,
+        })
     }
 
     /// The effects a bench hides, at the catalog's defaults (the
     /// quantization at a 2°-step encoder).
-    pub fn all() -> [Hidden; 8] {
+    pub fn all() -> [Hidden; 9] {
         [
             Self::Deadzone {
                 width: 0.1,
@@ -87,6 +94,7 @@ impl Hidden {
             Self::Quantization {
                 step: 2f64.to_radians(),
             },
+            Self::OrificeFlow,
         ]
     }
 }
@@ -138,6 +146,15 @@ impl Prior {
 }
 
 const SAMPLE_S: f64 = 1e-3;
+
+/// The orifice equation's √Δp relative to its value at half the data
+/// sheet's supply, signed (a reversed drop drives flow back), and smoothed
+/// within a bar of zero drop, Δp / (|Δp| + 1 bar)^½, so that its slope
+/// stays finite: a law of its own, not the model's.
+fn orifice_root(drop: f64) -> f64 {
+    const TRANSITION_PA: f64 = 1e5;
+    drop / ((drop.abs() + TRANSITION_PA) * 0.5 * Prior::SUPPLY).sqrt()
+}
 const SUBSTEPS: usize = 50;
 
 /// Simulates one foreign plant for `duration_s`, from `seed`.
@@ -242,8 +259,23 @@ pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> Fore
             if let (Some(Hidden::AsymmetricGain { ratio }), true) = (hidden, opening < 0.0) {
                 k_q *= ratio;
             }
-            let q_a = 2.0 * k_q * opening - 2.0 * flow_pressure * (p_a - 0.5 * supply);
-            let q_b = 2.0 * k_q * opening + 2.0 * flow_pressure * (p_b - 0.5 * supply);
+            // Each metering edge's pressure drop, for the orifice law: supply
+            // to A and B to tank when opening positive, the other edges when
+            // negative.
+            let (drop_a, drop_b) = if opening >= 0.0 {
+                (supply - p_a, p_b)
+            } else {
+                (p_a, supply - p_b)
+            };
+            let (metered_a, metered_b) = match hidden {
+                Some(Hidden::OrificeFlow) => (
+                    2.0 * k_q * opening * orifice_root(drop_a),
+                    2.0 * k_q * opening * orifice_root(drop_b),
+                ),
+                _ => (2.0 * k_q * opening, 2.0 * k_q * opening),
+            };
+            let q_a = metered_a - 2.0 * flow_pressure * (p_a - 0.5 * supply);
+            let q_b = metered_b + 2.0 * flow_pressure * (p_b - 0.5 * supply);
             let cross = leakage * (p_a - p_b);
             let stiffness = bulk / Prior::VOLUME;
             p_a += h * stiffness * (q_a - Prior::DISPLACEMENT * speed - cross);

@@ -458,7 +458,8 @@ pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
 pub enum ForeignSensors {
     /// Valve command, both chamber pressures, angle.
     Full,
-    /// Valve command and angle: a machine without pressure transducers.
+    /// Valve command and angle: a machine without pressure transducers;
+    /// the orifice flow, which only the pressures show, is not hidden.
     Motion,
     /// A measured torque and the angle: an axis whose torque is sensed; the
     /// valve's effects cannot show, and only the load's are hidden.
@@ -466,14 +467,17 @@ pub enum ForeignSensors {
 }
 
 impl ForeignSensors {
-    /// Whether a record of these sensors can show `hidden` at all.
-    fn can_show(self, hidden: Option<hydractl_sim::foreign::Hidden>) -> bool {
-        let Some(hidden) = hidden else { return true };
-        match self {
-            ForeignSensors::Full | ForeignSensors::Motion => true,
-            ForeignSensors::Torque => EffectKind::from_name(hidden.name())
-                .is_ok_and(|kind| greybox::Part::of(kind) == greybox::Part::Mechanical),
-        }
+    /// Whether a record of these sensors can show `hidden` at all (as
+    /// `diagnose` judges a record's parts), or why not.
+    fn can_show(self, hidden: Option<hydractl_sim::foreign::Hidden>) -> Result<(), String> {
+        let Some(hidden) = hidden else { return Ok(()) };
+        let (parts, has_command): (&[greybox::Part], bool) = match self {
+            ForeignSensors::Full => (&[greybox::Part::Hydraulic, greybox::Part::Mechanical], true),
+            ForeignSensors::Motion => (&[greybox::Part::Whole], true),
+            ForeignSensors::Torque => (&[greybox::Part::Mechanical], false),
+        };
+        let kind = EffectKind::from_name(hidden.name()).map_err(|e| e.to_string())?;
+        greybox::part_showing(parts, has_command, kind).map(|_| ())
     }
 }
 
@@ -583,10 +587,18 @@ pub fn bench_foreign(
     if let Some(unknown) = only.iter().find(|o| !known.contains(o)) {
         bail!("--effects: `{unknown}` is none of {}", known.join(", "));
     }
+    for case in all_cases.iter().filter(|c| only.contains(&name(c))) {
+        if let Err(reason) = sensors.can_show(*case) {
+            bail!(
+                "--effects {}: a record of these sensors cannot show it: {reason}",
+                name(case)
+            );
+        }
+    }
     let cases: Vec<Option<Hidden>> = all_cases
         .iter()
         .filter(|c| only.is_empty() || only.contains(&name(c)))
-        .filter(|c| sensors.can_show(**c))
+        .filter(|c| sensors.can_show(**c).is_ok())
         .copied()
         .collect();
     // A plant's seed depends on its case's place in the whole list, so a
@@ -614,7 +626,7 @@ pub fn bench_foreign(
         }
         let first = diagnosis.candidates.first();
         let fitted = hidden.and_then(|h| {
-            let (key, _) = h.main();
+            let (key, _) = h.main()?;
             diagnosis
                 .candidates
                 .iter()
@@ -671,7 +683,7 @@ pub fn bench_foreign(
         .iter()
         .map(|h| ForeignCase {
             hidden: name(h),
-            truth: h.map(|h| (h.main().0.to_owned(), h.main().1)),
+            truth: h.and_then(|h| h.main()).map(|(key, value)| (key.to_owned(), value)),
             plants: 0,
             named_first: 0,
             within_25_percent: 0,
@@ -687,8 +699,12 @@ pub fn bench_foreign(
         if let Some(h) = hidden {
             if run.first == h.name() && run.first_significant {
                 entry.named_first += 1;
-                let (_, truth) = h.main();
-                if run.fitted.is_some_and(|f| (f - truth).abs() <= 0.25 * truth.abs()) {
+                // An effect without a parameter is right when named.
+                let within = match h.main() {
+                    Some((_, truth)) => run.fitted.is_some_and(|f| (f - truth).abs() <= 0.25 * truth.abs()),
+                    None => true,
+                };
+                if within {
                     entry.within_25_percent += 1;
                 }
             }
@@ -719,7 +735,7 @@ pub fn bench_foreign(
         let mut times: Vec<f64> = case.runs.iter().map(|r| r.seconds).collect();
         times.sort_by(f64::total_cmp);
         let median = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
-        let (named, within) = if case.truth.is_some() {
+        let (named, within) = if case.hidden != "none" {
             (case.named_first.to_string(), case.within_25_percent.to_string())
         } else {
             ("-".to_owned(), "-".to_owned())

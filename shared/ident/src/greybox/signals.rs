@@ -166,33 +166,7 @@ impl Signals {
     /// The part of the model through which this record shows `kind`, or
     /// why it cannot show it.
     pub fn part_for(&self, kind: EffectKind) -> Result<Part, String> {
-        let parts = self.parts();
-        let own = Part::of(kind);
-        if parts.contains(&own) {
-            return Ok(own);
-        }
-        if parts.contains(&Part::Whole) {
-            return match kind {
-                EffectKind::OrificeFlow => Err(
-                    "no chamber pressures: the √Δp flow shows only in how the pressures approach supply and tank"
-                        .to_owned(),
-                ),
-                EffectKind::LoadFlexibility => Err(
-                    "no pressures or torque: with the valve between command and motion, a flexible load's ring \
-                     cannot be told from the hydraulic mode's"
-                        .to_owned(),
-                ),
-                _ => Ok(Part::Whole),
-            };
-        }
-        Err(match own {
-            Part::Hydraulic if !self.has_command => {
-                "no valve command `u`: the axis is driven by the measured torque, the hydraulic part is not fitted"
-                    .to_owned()
-            }
-            Part::Hydraulic => "no chamber pressures `p_a`, `p_b`: the hydraulic part is not fitted".to_owned(),
-            _ => "no torque `tau` or pressures: the mechanical part is not fitted".to_owned(),
-        })
+        part_showing(&self.parts(), self.has_command, kind)
     }
 
     pub fn len(&self) -> usize {
@@ -266,6 +240,38 @@ fn local_line(x: &[f64], dt: f64, half_width: usize) -> (Vec<f64>, Vec<f64>) {
         slope[k] = window_moment / (squares * dt);
     }
     (level, slope)
+}
+
+/// The part of a model with these `parts` (from a record with or without
+/// a valve command) through which `kind` shows, or why it cannot show:
+/// what [`Signals::part_for`] says of a record, known before any data.
+pub fn part_showing(parts: &[Part], has_command: bool, kind: EffectKind) -> Result<Part, String> {
+    let own = Part::of(kind);
+    if parts.contains(&own) {
+        return Ok(own);
+    }
+    if parts.contains(&Part::Whole) {
+        return match kind {
+            EffectKind::OrificeFlow => Err(
+                "no chamber pressures: the √Δp flow shows only in how the pressures approach supply and tank"
+                    .to_owned(),
+            ),
+            EffectKind::LoadFlexibility => Err(
+                "no pressures or torque: with the valve between command and motion, a flexible load's ring \
+                 cannot be told from the hydraulic mode's"
+                    .to_owned(),
+            ),
+            _ => Ok(Part::Whole),
+        };
+    }
+    Err(match own {
+        Part::Hydraulic if !has_command => {
+            "no valve command `u`: the axis is driven by the measured torque, the hydraulic part is not fitted"
+                .to_owned()
+        }
+        Part::Hydraulic => "no chamber pressures `p_a`, `p_b`: the hydraulic part is not fitted".to_owned(),
+        _ => "no torque `tau` or pressures: the mechanical part is not fitted".to_owned(),
+    })
 }
 
 #[cfg(test)]

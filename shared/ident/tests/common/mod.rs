@@ -10,9 +10,12 @@ use hydractl_sim::foreign::Hidden;
 /// three of the ranking when not.
 pub fn named_first_within(diagnosis: &Diagnosis, hidden: Hidden, tolerance: f64) -> Result<(), String> {
     let first = &diagnosis.candidates[0];
-    let (key, truth) = hidden.main();
-    let fitted = first.params.get(key).copied().unwrap_or(f64::NAN);
-    if first.effect == hidden.name() && first.significant && (fitted - truth).abs() <= tolerance * truth.abs() {
+    // An effect without a parameter is right when named.
+    let within = hidden.main().is_none_or(|(key, truth)| {
+        let fitted = first.params.get(key).copied().unwrap_or(f64::NAN);
+        (fitted - truth).abs() <= tolerance * truth.abs()
+    });
+    if first.effect == hidden.name() && first.significant && within {
         return Ok(());
     }
     let ranking: Vec<String> = diagnosis
