@@ -541,12 +541,14 @@ struct ForeignRun {
 #[derive(serde::Serialize)]
 struct ForeignCase {
     hidden: String,
-    /// The hidden effect's main parameter: key and true value.
+    /// The hidden effect's main parameter: key and true value (none for
+    /// an effect without one, such as `orifice_flow`).
     truth: Option<(String, f64)>,
     plants: usize,
     /// Hidden effect ranked first and called significant.
     named_first: usize,
-    /// …with its main parameter within 25 % of the truth.
+    /// …with its main parameter within 25 % of the truth (an effect
+    /// without a parameter: as `named_first`).
     within_25_percent: usize,
     /// Any effect called significant (with none hidden: false alarms).
     any_significant: usize,
@@ -735,10 +737,11 @@ pub fn bench_foreign(
         let mut times: Vec<f64> = case.runs.iter().map(|r| r.seconds).collect();
         times.sort_by(f64::total_cmp);
         let median = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
-        let (named, within) = if case.hidden != "none" {
-            (case.named_first.to_string(), case.within_25_percent.to_string())
-        } else {
-            ("-".to_owned(), "-".to_owned())
+        let (named, within) = match (case.hidden.as_str(), &case.truth) {
+            ("none", _) => ("-".to_owned(), "-".to_owned()),
+            // No parameter to be within 25 % of: naming it is all.
+            (_, None) => (case.named_first.to_string(), "-".to_owned()),
+            _ => (case.named_first.to_string(), case.within_25_percent.to_string()),
         };
         text += &format!(
             "{:<18} {:>6} {:>12} {:>12} {:>13} {:>10.2}\n",
