@@ -38,15 +38,6 @@ fn diagnosed(seed: u64, hidden: Option<Hidden>, sensors: Sensors, every: usize) 
     diagnosis
 }
 
-fn significant(diagnosis: &Diagnosis) -> Vec<(&str, &str)> {
-    diagnosis
-        .candidates
-        .iter()
-        .filter(|c| c.significant)
-        .map(|c| (c.effect.as_str(), c.evidence.as_str()))
-        .collect()
-}
-
 /// The hidden effect first and significant, its main parameter within
 /// 25 %; the first three of the ranking when not.
 fn named_first(diagnosis: &Diagnosis, hidden: Hidden) -> Result<(), String> {
@@ -70,7 +61,11 @@ fn without_pressures_nothing_is_found_where_nothing_is_hidden_and_the_record_say
     let not_judged: Vec<&str> = diagnosis.not_judged.iter().map(|n| n.effect.as_str()).collect();
     assert_eq!(not_judged, ["orifice_flow", "load_flexibility"]);
     assert!(diagnosis.not_judged.iter().all(|n| !n.reason.is_empty()));
-    assert!(significant(&diagnosis).is_empty(), "{:?}", significant(&diagnosis));
+    assert!(
+        common::significant(&diagnosis).is_empty(),
+        "{:?}",
+        common::significant(&diagnosis)
+    );
     // The overall error is the angle's, the one output measured.
     assert!(diagnosis.baseline.validation_nrmse_by_output.keys().eq(["theta"]));
 }
@@ -142,7 +137,11 @@ fn at_fifty_hertz_a_deadzone_is_named_and_nothing_else() {
     let diagnosis = diagnosed(22, Some(hidden), Sensors::Motion, 20);
     named_first(&diagnosis, hidden).unwrap_or_else(|e| panic!("{e}"));
     let clean = diagnosed(12, None, Sensors::Motion, 20);
-    assert!(significant(&clean).is_empty(), "{:?}", significant(&clean));
+    assert!(
+        common::significant(&clean).is_empty(),
+        "{:?}",
+        common::significant(&clean)
+    );
 }
 
 /// An axis driven by a measured torque: the mechanical part alone, every

@@ -40,12 +40,7 @@ fn diagnosed(seed: u64, hidden: Option<Hidden>) -> Diagnosis {
 
 fn nothing_significant(seed: u64) {
     let diagnosis = diagnosed(seed, None);
-    let significant: Vec<(&str, &str)> = diagnosis
-        .candidates
-        .iter()
-        .filter(|c| c.significant)
-        .map(|c| (c.effect.as_str(), c.evidence.as_str()))
-        .collect();
+    let significant = common::significant(&diagnosis);
     assert!(significant.is_empty(), "seed {seed}: {significant:?}");
     assert!(diagnosis.verdict.starts_with("no effect"), "{}", diagnosis.verdict);
 }
@@ -119,12 +114,7 @@ fn another_valve_law_is_named_added_and_then_nothing_is_missing() {
     assert!(after < 0.5 * before, "pressures' NRMSE {before:.4} → {after:.4}");
     let again = diagnose(&signals, Some(&with_orifice), options).expect("diagnoses");
     common::no_null_effect_beats_the_baseline(&again, &data.description);
-    let significant: Vec<&str> = again
-        .candidates
-        .iter()
-        .filter(|c| c.significant)
-        .map(|c| c.effect.as_str())
-        .collect();
+    let significant = common::significant(&again);
     assert!(
         significant.is_empty(),
         "{}: still significant: {significant:?}",

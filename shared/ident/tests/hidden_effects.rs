@@ -78,12 +78,7 @@ fn no_hidden_effect_nothing_significant() {
     let signals = closed_loop_data(None, 2);
     let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
     common::no_null_effect_beats_the_baseline(&diagnosis, "no effect, seed 2");
-    let significant: Vec<&str> = diagnosis
-        .candidates
-        .iter()
-        .filter(|c| c.significant)
-        .map(|c| c.effect.as_str())
-        .collect();
+    let significant = common::significant(&diagnosis);
     assert!(significant.is_empty(), "{significant:?}");
     assert!(diagnosis.verdict.starts_with("no effect"), "{}", diagnosis.verdict);
 }

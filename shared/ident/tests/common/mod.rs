@@ -32,6 +32,16 @@ pub fn named_first_within(diagnosis: &Diagnosis, hidden: Hidden, tolerance: f64)
     Err(format!("{}: {}", hidden.name(), ranking.join("; ")))
 }
 
+/// The effects a diagnosis calls significant, each with its evidence.
+pub fn significant(diagnosis: &Diagnosis) -> Vec<(&str, &str)> {
+    diagnosis
+        .candidates
+        .iter()
+        .filter(|c| c.significant)
+        .map(|c| (c.effect.as_str(), c.evidence.as_str()))
+        .collect()
+}
+
 /// An effect fitted at its null value is the baseline: it may not remove
 /// any error, let alone be called significant.
 pub fn no_null_effect_beats_the_baseline(diagnosis: &Diagnosis, plant: &str) {
