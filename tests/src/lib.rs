@@ -306,6 +306,26 @@ impl Observer {
         false
     }
 
+    /// Waits for `samples` valve outputs without a fault, not necessarily
+    /// in a row: a valve process that drives again. On CAN a loaded machine
+    /// makes some sensor PDOs late, and each flags its cycle (about 60 a
+    /// second under two busy loops on 2026-11-26), so a run of a thousand
+    /// clean cycles may never come while the valve drives.
+    pub fn wait_driving(&self, samples: usize, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        let mut clean = 0;
+        while Instant::now() < deadline {
+            while let Ok(Some(v)) = self.valve.next() {
+                clean += usize::from(v.faults == 0);
+                if clean >= samples {
+                    return true;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        false
+    }
+
     pub fn drain_valve(&self) {
         while let Ok(Some(_)) = self.valve.next() {}
     }

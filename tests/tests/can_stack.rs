@@ -160,7 +160,7 @@ fn a_killed_valve_process_leaves_the_valve_in_hold_with_an_emcy_and_its_restart_
     std::thread::sleep(Duration::from_millis(200));
     observer.drain_valve();
     assert!(
-        observer.wait_healthy(1000, Duration::from_secs(30)),
+        observer.wait_driving(1000, Duration::from_secs(30)),
         "the restarted valve process drives again"
     );
     let frames = tap.finish();
