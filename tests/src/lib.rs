@@ -292,18 +292,7 @@ impl Observer {
 
     /// Waits until valve samples flow healthy (no fault) for `cycles` in a row.
     pub fn wait_healthy(&self, cycles: usize, timeout: Duration) -> bool {
-        let deadline = Instant::now() + timeout;
-        let mut run = 0;
-        while Instant::now() < deadline {
-            while let Ok(Some(v)) = self.valve.next() {
-                run = if v.faults == 0 { run + 1 } else { 0 };
-                if run >= cycles {
-                    return true;
-                }
-            }
-            std::thread::sleep(Duration::from_millis(2));
-        }
-        false
+        self.wait_clean_valve(cycles, timeout, true)
     }
 
     /// Waits for `samples` valve outputs without a fault, not necessarily
@@ -312,12 +301,21 @@ impl Observer {
     /// second under two busy loops on 2026-11-26), so a run of a thousand
     /// clean cycles may never come while the valve drives.
     pub fn wait_driving(&self, samples: usize, timeout: Duration) -> bool {
+        self.wait_clean_valve(samples, timeout, false)
+    }
+
+    /// Waits for `count` valve outputs without a fault, `in_a_row` or not.
+    fn wait_clean_valve(&self, count: usize, timeout: Duration, in_a_row: bool) -> bool {
         let deadline = Instant::now() + timeout;
         let mut clean = 0;
         while Instant::now() < deadline {
             while let Ok(Some(v)) = self.valve.next() {
-                clean += usize::from(v.faults == 0);
-                if clean >= samples {
+                if v.faults == 0 {
+                    clean += 1;
+                } else if in_a_row {
+                    clean = 0;
+                }
+                if clean >= count {
                     return true;
                 }
             }

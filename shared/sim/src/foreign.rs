@@ -71,6 +71,14 @@ impl Hidden {
         })
     }
 
+    /// Whether `fitted`, the diagnosis's value of the main parameter, lies
+    /// within `tolerance` (a share) of the truth; an effect without a
+    /// parameter is right when named.
+    pub fn within(&self, fitted: Option<f64>, tolerance: f64) -> bool {
+        self.main()
+            .is_none_or(|(_, truth)| fitted.is_some_and(|f| (f - truth).abs() <= tolerance * truth.abs()))
+    }
+
     /// The effects a bench hides, at the catalog's defaults (the
     /// quantization at a 2°-step encoder).
     pub fn all() -> [Hidden; 9] {
@@ -147,6 +155,8 @@ impl Prior {
 
 const SAMPLE_S: f64 = 1e-3;
 
+const SUBSTEPS: usize = 50;
+
 /// The orifice equation's √Δp relative to its value at half the data
 /// sheet's supply, signed (a reversed drop drives flow back), and smoothed
 /// within a bar of zero drop, Δp / (|Δp| + 1 bar)^½, so that its slope
@@ -155,7 +165,6 @@ fn orifice_root(drop: f64) -> f64 {
     const TRANSITION_PA: f64 = 1e5;
     drop / ((drop.abs() + TRANSITION_PA) * 0.5 * Prior::SUPPLY).sqrt()
 }
-const SUBSTEPS: usize = 50;
 
 /// Simulates one foreign plant for `duration_s`, from `seed`.
 pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> ForeignData {

@@ -471,13 +471,15 @@ impl ForeignSensors {
     /// `diagnose` judges a record's parts), or why not.
     fn can_show(self, hidden: Option<hydractl_sim::foreign::Hidden>) -> Result<(), String> {
         let Some(hidden) = hidden else { return Ok(()) };
-        let (parts, has_command): (&[greybox::Part], bool) = match self {
-            ForeignSensors::Full => (&[greybox::Part::Hydraulic, greybox::Part::Mechanical], true),
-            ForeignSensors::Motion => (&[greybox::Part::Whole], true),
-            ForeignSensors::Torque => (&[greybox::Part::Mechanical], false),
+        // (command, pressures, torque) measured.
+        let (has_command, has_pressures, has_torque) = match self {
+            ForeignSensors::Full => (true, true, false),
+            ForeignSensors::Motion => (true, false, false),
+            ForeignSensors::Torque => (false, false, true),
         };
+        let parts = greybox::parts_measured(has_command, has_pressures, has_torque);
         let kind = EffectKind::from_name(hidden.name()).map_err(|e| e.to_string())?;
-        greybox::part_showing(parts, has_command, kind).map(|_| ())
+        greybox::part_showing(&parts, has_command, kind).map(|_| ())
     }
 }
 
@@ -701,12 +703,7 @@ pub fn bench_foreign(
         if let Some(h) = hidden {
             if run.first == h.name() && run.first_significant {
                 entry.named_first += 1;
-                // An effect without a parameter is right when named.
-                let within = match h.main() {
-                    Some((_, truth)) => run.fitted.is_some_and(|f| (f - truth).abs() <= 0.25 * truth.abs()),
-                    None => true,
-                };
-                if within {
+                if h.within(run.fitted, 0.25) {
                     entry.within_25_percent += 1;
                 }
             }

@@ -31,7 +31,7 @@ pub use shadow::{
     moved_effect, segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow,
     CALIBRATION_SEGMENTS,
 };
-pub use signals::{part_showing, Signals, COLUMNS, REQUIRED_COLUMNS};
+pub use signals::{part_showing, parts_measured, Signals, COLUMNS, REQUIRED_COLUMNS};
 
 use std::collections::BTreeMap;
 use std::ops::Range;

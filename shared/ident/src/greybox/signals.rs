@@ -151,16 +151,7 @@ impl Signals {
     /// measured or from the pressures; with the command alone, the whole
     /// path from command to angle.
     pub fn parts(&self) -> Vec<Part> {
-        let mut parts = Vec::new();
-        if self.has_command && self.has_pressures {
-            parts.push(Part::Hydraulic);
-        }
-        if self.has_pressures || self.tau.is_some() {
-            parts.push(Part::Mechanical);
-        } else if self.has_command {
-            parts.push(Part::Whole);
-        }
-        parts
+        parts_measured(self.has_command, self.has_pressures, self.tau.is_some())
     }
 
     /// The part of the model through which this record shows `kind`, or
@@ -240,6 +231,20 @@ fn local_line(x: &[f64], dt: f64, half_width: usize) -> (Vec<f64>, Vec<f64>) {
         slope[k] = window_moment / (squares * dt);
     }
     (level, slope)
+}
+
+/// The parts a record of these signals can fit (see [`Signals::parts`]).
+pub fn parts_measured(has_command: bool, has_pressures: bool, has_torque: bool) -> Vec<Part> {
+    let mut parts = Vec::new();
+    if has_command && has_pressures {
+        parts.push(Part::Hydraulic);
+    }
+    if has_pressures || has_torque {
+        parts.push(Part::Mechanical);
+    } else if has_command {
+        parts.push(Part::Whole);
+    }
+    parts
 }
 
 /// The part of a model with these `parts` (from a record with or without

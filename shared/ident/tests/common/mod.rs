@@ -10,12 +10,8 @@ use hydractl_sim::foreign::Hidden;
 /// three of the ranking when not.
 pub fn named_first_within(diagnosis: &Diagnosis, hidden: Hidden, tolerance: f64) -> Result<(), String> {
     let first = &diagnosis.candidates[0];
-    // An effect without a parameter is right when named.
-    let within = hidden.main().is_none_or(|(key, truth)| {
-        let fitted = first.params.get(key).copied().unwrap_or(f64::NAN);
-        (fitted - truth).abs() <= tolerance * truth.abs()
-    });
-    if first.effect == hidden.name() && first.significant && within {
+    let fitted = hidden.main().and_then(|(key, _)| first.params.get(key).copied());
+    if first.effect == hidden.name() && first.significant && hidden.within(fitted, tolerance) {
         return Ok(());
     }
     let ranking: Vec<String> = diagnosis
