@@ -134,9 +134,12 @@ pub fn run(kind: PlantKind) -> Result<()> {
     // first reading is answered, as in the offline simulation, where the
     // controllers are there from t = 0. A restarted plant finds the chain
     // running; a machine waits for no one.
-    if kind == PlantKind::Simulation && started.args.resume.is_none() && seat.in_charge() {
-        wait_for_chain(bus)?;
-    }
+    // Its first answer is awaited as long as the chain's start: each
+    // stage's first cycle maps the segments and faults in the pages it
+    // touches, and on a loaded machine a stage woken after the second
+    // reading takes the newest and never answers the first.
+    let fresh_start = kind == PlantKind::Simulation && started.args.resume.is_none() && seat.in_charge();
+    let mut first_answer_timeout = (fresh_start && wait_for_chain(bus)).then_some(CHAIN_START_TIMEOUT);
     let mut next_tick = Instant::now();
     started.enter_realtime();
     loop {
@@ -227,20 +230,29 @@ pub fn run(kind: PlantKind) -> Result<()> {
         readings.publish(body.read(seq, late_commands, source_code, neutral_for)?)?;
         // The machine on CAN does not wait for its valve: the next SYNC is
         // due at the next period, whatever the command does.
+        let first_answer = first_answer_timeout.take();
         let deadline = match body {
             Body::Can(_) => next_tick + period.mul_f64(0.9),
-            Body::Simulated { .. } => Instant::now() + command_timeout,
+            Body::Simulated { .. } => Instant::now() + first_answer.unwrap_or(command_timeout),
+        };
+        // The valve starting or stopping drives neutral, answering no
+        // reading; nor does the neutral it holds until its first command.
+        let unanswered = if first_answer.is_some() {
+            fault::OFF | fault::STALE
+        } else {
+            fault::OFF
         };
         let mut fresh = false;
         while !fresh {
             let remaining = deadline.saturating_duration_since(Instant::now());
             match valve.wait_latest(remaining)? {
-                // The valve starting or stopping drives neutral, answering no reading.
-                Some(sample) if sample.sensor_seq >= seq && sample.faults & fault::OFF == 0 => {
+                Some(sample) if sample.sensor_seq >= seq && sample.faults & unanswered == 0 => {
                     command = sample.command;
                     fresh = true;
                 }
                 Some(sample) => command = sample.command,
+                // A signal ends the first reading's long wait too.
+                None if bus.termination_requested() => break,
                 None => {}
             }
             if remaining.is_zero() {
@@ -333,8 +345,9 @@ impl Body {
 const CHAIN_START_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Waits until every stage of the chain publishes (each opens its input
-/// before its output, so its input is there too), or the timeout passes.
-fn wait_for_chain(bus: &hydractl_bus::Bus) -> Result<()> {
+/// before its output, so its input is there too), or the timeout passes;
+/// whether the whole chain is there.
+fn wait_for_chain(bus: &hydractl_bus::Bus) -> bool {
     let started = Instant::now();
     let mut sensor = PublisherWatch::<SensorSample>::new(service::SENSOR);
     let mut friction = PublisherWatch::<FrictionSample>::new(service::FRICTION);
@@ -354,15 +367,18 @@ fn wait_for_chain(bus: &hydractl_bus::Bus) -> Result<()> {
                 missing.push(name);
             }
         }
-        if missing.is_empty() || bus.termination_requested() {
-            return Ok(());
+        if missing.is_empty() {
+            return true;
+        }
+        if bus.termination_requested() {
+            return false;
         }
         if started.elapsed() >= CHAIN_START_TIMEOUT {
             tracing::warn!(
                 "after {CHAIN_START_TIMEOUT:?} nothing publishes on {}; starting without them",
                 missing.join(", ")
             );
-            return Ok(());
+            return false;
         }
         std::thread::sleep(Duration::from_millis(5));
     }
