@@ -382,7 +382,7 @@ fn add(args: AddArgs) -> Result<()> {
         .unwrap_or_default();
     refit.save(&args.out)?;
     let mut text = format!("added `{kind}`");
-    if let Some(params) = refit.effects.0.get(kind.name()) {
+    if let Some(params) = refit.effects.0.get(kind.name()).filter(|p| !p.is_empty()) {
         let list: Vec<String> = params.iter().map(|(k, v)| format!("{k} = {v:.6}")).collect();
         text += &format!(" ({})", list.join(", "));
     }
