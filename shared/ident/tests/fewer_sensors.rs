@@ -9,30 +9,13 @@ mod common;
 
 use hydractl_ident::greybox::{diagnose, Diagnosis, FitOptions, Part, Signals};
 use hydractl_ident::Dataset;
-use hydractl_sim::foreign::{foreign_plant, ForeignData, Hidden};
-
-#[derive(Clone, Copy)]
-enum Sensors {
-    /// Valve command and angle.
-    Motion,
-    /// A measured torque and the angle.
-    Torque,
-}
-
-fn dataset(data: ForeignData, sensors: Sensors, every: usize) -> Dataset {
-    let take = |column: &[f64]| column.iter().step_by(every).copied().collect::<Vec<f64>>();
-    let mut columns = vec![("t", take(&data.t)), ("theta", take(&data.theta))];
-    match sensors {
-        Sensors::Motion => columns.push(("u", take(&data.u))),
-        Sensors::Torque => columns.push(("tau", take(&data.torque_reading()))),
-    }
-    Dataset::from_columns("foreign", columns)
-}
+use hydractl_sim::foreign::{foreign_plant, Hidden, Sensors};
 
 fn diagnosed(seed: u64, hidden: Option<Hidden>, sensors: Sensors, every: usize) -> Diagnosis {
     let data = foreign_plant(seed, hidden, 60.0);
     let description = data.description.clone();
-    let signals = Signals::from_dataset(&dataset(data, sensors, every)).expect("valid signals");
+    let dataset = Dataset::from_columns("foreign", data.record(sensors, every));
+    let signals = Signals::from_dataset(&dataset).expect("valid signals");
     let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
     common::no_null_effect_beats_the_baseline(&diagnosis, &description);
     diagnosis

@@ -15,20 +15,10 @@ mod common;
 use hydractl_ident::greybox::{self, diagnose, Diagnosis, FitOptions, Model, Signals};
 use hydractl_ident::Dataset;
 use hydractl_plant::{EffectKind, PlantParams};
-use hydractl_sim::foreign::{foreign_plant, ForeignData, Hidden};
+use hydractl_sim::foreign::{foreign_plant, ForeignData, Hidden, Sensors};
 
 fn signals(data: &ForeignData) -> Signals {
-    let dataset = Dataset::from_columns(
-        "foreign",
-        vec![
-            ("t", data.t.clone()),
-            ("u", data.u.clone()),
-            ("p_a", data.p_a_bar.clone()),
-            ("p_b", data.p_b_bar.clone()),
-            ("theta", data.theta.clone()),
-        ],
-    );
-    Signals::from_dataset(&dataset).expect("valid signals")
+    Signals::from_dataset(&Dataset::from_columns("foreign", data.record(Sensors::Full, 1))).expect("valid signals")
 }
 
 fn diagnosed(seed: u64, hidden: Option<Hidden>) -> Diagnosis {

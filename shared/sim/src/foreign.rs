@@ -120,7 +120,53 @@ pub struct ForeignData {
     pub description: String,
 }
 
+/// Which sensors a foreign plant's machine is given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sensors {
+    /// Valve command, both chamber pressures, angle.
+    Full,
+    /// Valve command and angle: a machine without pressure transducers.
+    Motion,
+    /// A measured torque and the angle: an axis whose torque is sensed.
+    Torque,
+}
+
+impl Sensors {
+    /// The columns a record of these sensors holds, named as the model
+    /// tools read them.
+    pub fn columns(self) -> &'static [&'static str] {
+        match self {
+            Self::Full => &["t", "u", "p_a", "p_b", "theta"],
+            Self::Motion => &["t", "u", "theta"],
+            Self::Torque => &["t", "tau", "theta"],
+        }
+    }
+}
+
 impl ForeignData {
+    /// The record a machine with `sensors` keeps of this run, every
+    /// `every`-th sample: its [`Sensors::columns`], named and in order.
+    pub fn record(&self, sensors: Sensors, every: usize) -> Vec<(&'static str, Vec<f64>)> {
+        sensors
+            .columns()
+            .iter()
+            .filter_map(|&name| Some((name, self.column(name)?.into_iter().step_by(every).collect())))
+            .collect()
+    }
+
+    /// A column by the name the model tools read it by.
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        Some(match name {
+            "t" => self.t.clone(),
+            "u" => self.u.clone(),
+            "p_a" => self.p_a_bar.clone(),
+            "p_b" => self.p_b_bar.clone(),
+            "tau" => self.torque_reading(),
+            "theta" => self.theta.clone(),
+            _ => return None,
+        })
+    }
+
     /// What a torque sensor on the shaft reads, N·m: the transducers'
     /// pressure difference through the plant's displacement, with their
     /// noise and lag, for an axis whose torque is measured.

@@ -467,17 +467,26 @@ pub enum ForeignSensors {
 }
 
 impl ForeignSensors {
+    fn record(self) -> hydractl_sim::foreign::Sensors {
+        use hydractl_sim::foreign::Sensors;
+        match self {
+            ForeignSensors::Full => Sensors::Full,
+            ForeignSensors::Motion => Sensors::Motion,
+            ForeignSensors::Torque => Sensors::Torque,
+        }
+    }
+
     /// Whether a record of these sensors can show `hidden` at all (as
     /// `diagnose` judges a record's parts), or why not.
     fn can_show(self, hidden: Option<hydractl_sim::foreign::Hidden>) -> Result<(), String> {
         let Some(hidden) = hidden else { return Ok(()) };
-        // (command, pressures, torque) measured.
-        let (has_command, has_pressures, has_torque) = match self {
-            ForeignSensors::Full => (true, true, false),
-            ForeignSensors::Motion => (true, false, false),
-            ForeignSensors::Torque => (false, false, true),
-        };
-        let parts = greybox::parts_measured(has_command, has_pressures, has_torque);
+        let columns = self.record().columns();
+        let has_command = columns.contains(&"u");
+        let parts = greybox::parts_measured(
+            has_command,
+            columns.contains(&"p_a") && columns.contains(&"p_b"),
+            columns.contains(&"tau"),
+        );
         let kind = EffectKind::from_name(hidden.name()).map_err(|e| e.to_string())?;
         greybox::part_showing(&parts, has_command, kind).map(|_| ())
     }
@@ -492,21 +501,6 @@ pub struct ForeignBench {
     pub sensors: ForeignSensors,
     /// Hz; divides 1000.
     pub rate: u32,
-}
-
-/// A foreign plant's data as the model tools read it: the columns its
-/// sensors give, every `every`-th sample.
-fn foreign_dataset(data: hydractl_sim::foreign::ForeignData, sensors: ForeignSensors, every: usize) -> Dataset {
-    let take = |column: Vec<f64>| column.into_iter().step_by(every).collect::<Vec<f64>>();
-    let driving = match sensors {
-        ForeignSensors::Full => vec![("u", data.u), ("p_a", data.p_a_bar), ("p_b", data.p_b_bar)],
-        ForeignSensors::Motion => vec![("u", data.u)],
-        ForeignSensors::Torque => vec![("tau", data.torque_reading())],
-    };
-    let mut columns = vec![("t", take(data.t))];
-    columns.extend(driving.into_iter().map(|(name, column)| (name, take(column))));
-    columns.push(("theta", take(data.theta)));
-    Dataset::from_columns("foreign", columns)
 }
 
 /// A foreign plant's dataset as a CSV file, in the model tools' column
@@ -615,7 +609,7 @@ pub fn bench_foreign(
         let plant_seed = plant_seed(hidden, i);
         let data = foreign_plant(plant_seed, hidden, duration);
         let description = data.description.clone();
-        let dataset = foreign_dataset(data, sensors, every);
+        let dataset = Dataset::from_columns("foreign", data.record(sensors.record(), every));
         if let Some(dir) = save_data {
             save_dataset(&dir.join(format!("{}-{plant_seed}.csv", name(&hidden))), &dataset)?;
         }
