@@ -329,12 +329,11 @@ pub fn diagnose_with(
     let verdict = match candidates.first() {
         Some(best) if best.significant => {
             format!(
-            "add `{}`: it removes {:.0}% of the {} error ({:.4} → {:.4}; {} = {:.1} over {} segments, threshold {:.1})",
+            "add `{}`: it removes {:.0}% of the {} error ({}; {} = {:.1} over {} segments, threshold {:.1})",
             best.effect,
             100.0 * (1.0 - best.validation_nrmse_after / best.validation_nrmse_before),
             best.output,
-            best.validation_nrmse_before,
-            best.validation_nrmse_after,
+            before_after(best.validation_nrmse_before, best.validation_nrmse_after),
             if best.test == SegmentTest::SignedRank.name() { "signed-rank z" } else { "t" },
             best.statistic,
             best.segments,
@@ -345,11 +344,10 @@ pub fn diagnose_with(
             // A fall the test could not make sure of is worth a user's
             // knowing: a longer record, or one that excites it more, may.
             Some(near) => format!(
-                "no effect of the catalog helps significantly; the nearest, `{}`, lowers the {} validation NRMSE {:.4} → {:.4}, not surely ({} = {:.1} against {:.1} over {} segments; tried alone, at {:.0} %, it would pass): a longer record may tell",
+                "no effect of the catalog helps significantly; the nearest, `{}`, lowers the {} validation NRMSE {}, not surely ({} = {:.1} against {:.1} over {} segments; tried alone, at {:.0} %, it would pass): a longer record may tell",
                 near.effect,
                 near.output,
-                near.validation_nrmse_before,
-                near.validation_nrmse_after,
+                before_after(near.validation_nrmse_before, near.validation_nrmse_after),
                 if near.test == SegmentTest::SignedRank.name() { "signed-rank z" } else { "t" },
                 near.statistic,
                 near.threshold,
@@ -732,10 +730,8 @@ fn evidence(
         on_lattice,
     } = judgement;
     let get = |key: &str| params.get(key).copied().unwrap_or(f64::NAN);
-    let change = format!(
-        "; with it the {} validation NRMSE goes {before:.4} → {after:.4}",
-        part.output()
-    );
+    let went = before_after(before, after);
+    let change = format!("; with it the {} validation NRMSE goes {went}", part.output());
     let what = match kind {
         // Without pressures the valve's effects show in the motion only.
         EffectKind::Deadzone if part == Part::Whole => {
@@ -844,13 +840,13 @@ fn evidence(
         format!("not significant: fitted as hard as the baseline, it lowers the estimation loss no further ({judged})")
     } else if let Some(why) = not_itself.filter(|_| test.passed() && after < before) {
         format!(
-            "not named: fitted, it takes the {output} validation NRMSE {before:.4} → {after:.4}, but {why}: \
+            "not named: fitted, it takes the {output} validation NRMSE {went}, but {why}: \
              it stands in for something the catalog lacks ({judged})"
         )
     } else if let Some(share) = resolution.filter(|s| *s < RESOLUTION_SHARE) {
         format!(
             "not a missing effect: the angle moves in steps of {:.3e} rad, {:.2}% of its spread, the encoder's own resolution (under {:.0}%); \
-             modelling the staircase takes the {output} validation NRMSE {before:.4} → {after:.4} ({judged})",
+             modelling the staircase takes the {output} validation NRMSE {went} ({judged})",
             get("step"),
             100.0 * share,
             100.0 * RESOLUTION_SHARE
@@ -858,13 +854,22 @@ fn evidence(
     } else if significant {
         format!("{judged}; {what}{change}")
     } else if after > before {
-        format!("not significant: fitted, it makes the {output} validation NRMSE worse, {before:.4} → {after:.4} ({judged})")
+        format!("not significant: fitted, it makes the {output} validation NRMSE worse, {went} ({judged})")
     } else {
         format!(
-            "not significant: fitted, it lowers the {output} validation NRMSE {before:.4} → {after:.4}, not surely by more than the {:.0}% that counts ({judged})",
+            "not significant: fitted, it lowers the {output} validation NRMSE {went}, not surely by more than the {:.0}% that counts ({judged})",
             100.0 * MIN_ERROR_REMOVED
         )
     }
+}
+
+/// "0.0266 → 0.0232": with as many decimals (4 to 8) as it takes to tell
+/// them apart, so that a change is never printed as none.
+fn before_after(before: f64, after: f64) -> String {
+    let digits = (4..=8)
+        .find(|&d| format!("{before:.d$}") != format!("{after:.d$}"))
+        .unwrap_or(4);
+    format!("{before:.digits$} → {after:.digits$}")
 }
 
 fn share(x: &[f64], predicate: impl Fn(f64) -> bool) -> f64 {
@@ -875,7 +880,7 @@ fn share(x: &[f64], predicate: impl Fn(f64) -> bool) -> f64 {
 mod tests {
     use std::collections::{BTreeMap, BTreeSet};
 
-    use super::{least_fall, nearest, paired_t, readings_on_lattice, signed_rank, Candidate};
+    use super::{before_after, least_fall, nearest, paired_t, readings_on_lattice, signed_rank, Candidate};
 
     /// A delay's pattern on a foreign plant: most segments gain a little,
     /// the few where the command steps gain 400-fold. Their spread sinks
@@ -990,5 +995,12 @@ mod tests {
         );
         let weak = [turned_down("gravity_load", 0.7, 0.0303, 0.0281)];
         assert!(nearest(&weak, &all).is_none(), "t 0.7 passes nothing alone");
+    }
+
+    #[test]
+    fn a_change_is_printed_with_the_decimals_that_show_it() {
+        assert_eq!(before_after(0.0266, 0.0232), "0.0266 → 0.0232");
+        assert_eq!(before_after(0.001914, 0.0019134), "0.001914 → 0.001913");
+        assert_eq!(before_after(0.02, 0.02), "0.0200 → 0.0200");
     }
 }
