@@ -93,6 +93,17 @@ pub struct Candidate {
     pub uncertainty: Uncertainty,
 }
 
+impl Candidate {
+    /// The symbol of the statistic that decided, for a verdict.
+    fn statistic_symbol(&self) -> &'static str {
+        if self.test == SegmentTest::SignedRank.name() {
+            "signed-rank z"
+        } else {
+            "t"
+        }
+    }
+}
+
 /// An effect the record cannot show, and why.
 #[derive(Debug, Clone, Serialize)]
 pub struct NotJudged {
@@ -316,11 +327,11 @@ pub fn diagnose_with(
     judged.sort_by_key(|(i, _)| *i);
     let mut candidates = Vec::new();
     let mut fitted = BTreeMap::new();
-    let mut plausible = BTreeSet::new();
+    let mut plausible_effects = BTreeSet::new();
     for (_, result) in judged {
-        let (candidate, refit, is_plausible) = result?;
-        if is_plausible {
-            plausible.insert(candidate.effect.clone());
+        let (candidate, refit, plausible) = result?;
+        if plausible {
+            plausible_effects.insert(candidate.effect.clone());
         }
         fitted.insert(candidate.effect.clone(), refit);
         candidates.push(candidate);
@@ -334,13 +345,13 @@ pub fn diagnose_with(
             100.0 * (1.0 - best.validation_nrmse_after / best.validation_nrmse_before),
             best.output,
             before_after(best.validation_nrmse_before, best.validation_nrmse_after),
-            if best.test == SegmentTest::SignedRank.name() { "signed-rank z" } else { "t" },
+            best.statistic_symbol(),
             best.statistic,
             best.segments,
             best.threshold
         )
         }
-        _ => match nearest(&candidates, &plausible) {
+        _ => match nearest(&candidates, &plausible_effects) {
             // A fall the test could not make sure of is worth a user's
             // knowing: a longer record, or one that excites it more, may.
             Some(near) => format!(
@@ -348,7 +359,7 @@ pub fn diagnose_with(
                 near.effect,
                 near.output,
                 before_after(near.validation_nrmse_before, near.validation_nrmse_after),
-                if near.test == SegmentTest::SignedRank.name() { "signed-rank z" } else { "t" },
+                near.statistic_symbol(),
                 near.statistic,
                 near.threshold,
                 near.segments,
