@@ -467,7 +467,8 @@ pub enum ForeignSensors {
 }
 
 impl ForeignSensors {
-    fn record(self) -> hydractl_sim::foreign::Sensors {
+    /// The same sensors as the foreign plants name them.
+    fn sensors(self) -> hydractl_sim::foreign::Sensors {
         use hydractl_sim::foreign::Sensors;
         match self {
             ForeignSensors::Full => Sensors::Full,
@@ -480,7 +481,7 @@ impl ForeignSensors {
     /// `diagnose` judges a record's parts), or why not.
     fn can_show(self, hidden: Option<hydractl_sim::foreign::Hidden>) -> Result<(), String> {
         let Some(hidden) = hidden else { return Ok(()) };
-        let columns = self.record().columns();
+        let columns = self.sensors().columns();
         let has_command = columns.contains(&"u");
         let parts = greybox::parts_measured(
             has_command,
@@ -609,7 +610,7 @@ pub fn bench_foreign(
         let plant_seed = plant_seed(hidden, i);
         let data = foreign_plant(plant_seed, hidden, duration);
         let description = data.description.clone();
-        let dataset = Dataset::from_columns("foreign", data.record(sensors.record(), every));
+        let dataset = Dataset::from_columns("foreign", data.record(sensors.sensors(), every));
         if let Some(dir) = save_data {
             save_dataset(&dir.join(format!("{}-{plant_seed}.csv", name(&hidden))), &dataset)?;
         }
