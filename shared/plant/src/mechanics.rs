@@ -4,6 +4,8 @@
 //! pressures; model identification drives them with measured torque, so
 //! that an angle residual points at the mechanics alone.
 
+use nalgebra::{Matrix4, SMatrix, Vector4};
+
 use crate::effects::Effects;
 use crate::PlantParams;
 
@@ -73,6 +75,67 @@ pub fn motion_rates(
     rates
 }
 
+/// One sample's exact step of the mechanics where they are linear (viscous
+/// friction, a flexible load, the constant load torque; no Coulomb friction
+/// and no gravity), the hydraulic torque a ramp between samples: one matrix
+/// product in place of an integrator's evaluations of [`motion_rates`], and
+/// no stability limit from a stiff coupling. Built from [`motion_rates`]
+/// itself, which is affine in the motion and the torque there.
+#[derive(Debug, Clone, Copy)]
+pub struct LinearStep {
+    transition: Matrix4<f64>,
+    from_start_torque: Vector4<f64>,
+    from_end_torque: Vector4<f64>,
+    constant: Vector4<f64>,
+}
+
+impl LinearStep {
+    /// `None` where the mechanics are not linear, or the step is not finite.
+    pub fn new(params: &PlantParams, effects: &Effects, dt: f64) -> Option<Self> {
+        if effects.coulomb_friction.is_some() || effects.gravity_load.is_some() || !dt.is_finite() || dt <= 0.0 {
+            return None;
+        }
+        // The state [motion, torque, torque's slope, 1]: the motion's rates
+        // are A·motion + B·torque + c, the torque a ramp.
+        let rates = |motion: &Motion, torque: f64| Vector4::from(motion_rates(params, effects, motion, torque, 0.0));
+        let at_rest = rates(&[0.0; 4], 0.0);
+        let mut generator = SMatrix::<f64, 7, 7>::zeros();
+        for i in 0..4 {
+            let mut unit = [0.0; 4];
+            unit[i] = 1.0;
+            generator
+                .fixed_view_mut::<4, 1>(0, i)
+                .copy_from(&(rates(&unit, 0.0) - at_rest));
+        }
+        generator
+            .fixed_view_mut::<4, 1>(0, 4)
+            .copy_from(&(rates(&[0.0; 4], 1.0) - at_rest));
+        generator[(4, 5)] = 1.0;
+        generator.fixed_view_mut::<4, 1>(0, 6).copy_from(&at_rest);
+        let exact = (generator * dt).exp();
+        let from_torque = exact.fixed_view::<4, 1>(0, 4).into_owned();
+        let from_slope = exact.fixed_view::<4, 1>(0, 5).into_owned();
+        let step = Self {
+            transition: exact.fixed_view::<4, 4>(0, 0).into_owned(),
+            from_start_torque: from_torque - from_slope / dt,
+            from_end_torque: from_slope / dt,
+            constant: exact.fixed_view::<4, 1>(0, 6).into_owned(),
+        };
+        step.transition.iter().all(|v| v.is_finite()).then_some(step)
+    }
+
+    /// The motion one sample on, the hydraulic torque going from
+    /// `torque_start` to `torque_end` over the sample.
+    #[inline]
+    pub fn step(&self, motion: &Motion, torque_start: f64, torque_end: f64) -> Motion {
+        let next = self.transition * Vector4::from(*motion)
+            + self.from_start_torque * torque_start
+            + self.from_end_torque * torque_end
+            + self.constant;
+        next.into()
+    }
+}
+
 /// Decides breakaway before a step: the friction direction for the step and
 /// whether the actuator stays stuck. Without Coulomb friction: (0, false).
 #[inline]
@@ -128,4 +191,72 @@ pub fn settle_friction(
         after[LOAD_VELOCITY] = after[VELOCITY];
     }
     now_stuck
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::effects::{CoulombFriction, LoadFlexibility};
+
+    /// RK4 on many substeps, the torque a ramp: the reference for one sample.
+    fn integrated(params: &PlantParams, effects: &Effects, motion: &Motion, torques: (f64, f64), dt: f64) -> Motion {
+        const SUBSTEPS: usize = 2000;
+        let h = dt / SUBSTEPS as f64;
+        let torque = |t: f64| torques.0 + (torques.1 - torques.0) * t / dt;
+        let rates = |m: &Motion, t: f64| motion_rates(params, effects, m, torque(t), 0.0);
+        let add = |m: &Motion, k: &Motion, a: f64| std::array::from_fn::<f64, 4, _>(|i| m[i] + a * k[i]);
+        let mut m = *motion;
+        for n in 0..SUBSTEPS {
+            let t = n as f64 * h;
+            let k1 = rates(&m, t);
+            let k2 = rates(&add(&m, &k1, 0.5 * h), t + 0.5 * h);
+            let k3 = rates(&add(&m, &k2, 0.5 * h), t + 0.5 * h);
+            let k4 = rates(&add(&m, &k3, h), t + h);
+            m = std::array::from_fn(|i| m[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]));
+        }
+        m
+    }
+
+    #[test]
+    fn the_linear_step_is_the_mechanics_integrated_over_one_sample() {
+        let params = PlantParams {
+            load_torque: 7.0,
+            ..PlantParams::default()
+        };
+        let flexible = Effects {
+            load_flexibility: Some(LoadFlexibility {
+                stiffness: 2.0e4,
+                damping: 15.0,
+                load_fraction: 0.6,
+            }),
+            ..Effects::default()
+        };
+        let dt = 1e-3;
+        for effects in [Effects::default(), flexible] {
+            let step = LinearStep::new(&params, &effects, dt).expect("linear mechanics");
+            let start = [0.3, -0.8, 0.29, -0.5];
+            let start = if effects.load_flexibility.is_some() {
+                start
+            } else {
+                [start[0], start[1], start[0], start[1]]
+            };
+            let exact = step.step(&start, 120.0, -40.0);
+            let reference = integrated(&params, &effects, &start, (120.0, -40.0), dt);
+            for i in 0..4 {
+                assert!(
+                    (exact[i] - reference[i]).abs() < 1e-10,
+                    "{exact:?} against {reference:?}"
+                );
+            }
+        }
+        let with_friction = Effects {
+            coulomb_friction: Some(CoulombFriction {
+                coulomb: 30.0,
+                breakaway: 45.0,
+                stribeck_velocity: 0.05,
+            }),
+            ..Effects::default()
+        };
+        assert!(LinearStep::new(&params, &with_friction, dt).is_none());
+    }
 }

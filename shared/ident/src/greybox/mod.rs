@@ -471,6 +471,11 @@ pub fn predict_mechanical(
 ) {
     let mut shaft = Vec::new();
     let mut best = Vec::new();
+    let model = Mechanics {
+        plant,
+        effects,
+        linear: mechanics::LinearStep::new(plant, effects, signals.dt),
+    };
     for segment in segments(signals, range) {
         let start = segment.start;
         let mut initial_angle = signals.theta_smooth[start];
@@ -489,7 +494,7 @@ pub fn predict_mechanical(
         // Simulates the segment from an initial state (and a position in the
         // play) into `shaft`, and keeps it in `best` when it fits better.
         let mut try_start = |initial: (f64, f64), play: Option<f64>, shaft: &mut Vec<f64>| {
-            simulate_segment(plant, effects, signals, segment.clone(), initial, play, shaft);
+            simulate_segment(&model, signals, segment.clone(), initial, play, shaft);
             keep_if_better(effects, measured, shaft, &mut best, &mut best_error);
         };
         // Without a mechanical effect the correction is exact: two passes do.
@@ -693,20 +698,28 @@ fn initial_state_correction(
     ((s22 * r1 - s12 * r2) / det, (s11 * r2 - s12 * r1) / det)
 }
 
+/// The mechanical part's model as one segment's simulation uses it: with
+/// the exact step of linear mechanics, where they are linear.
+struct Mechanics<'a> {
+    plant: &'a PlantParams,
+    effects: &'a Effects,
+    linear: Option<mechanics::LinearStep>,
+}
+
 /// One segment of the mechanical part from a given initial state (the
 /// encoder's angle and the velocity); writes the encoder shaft's angle
 /// (before quantization) into `shaft`. With backlash, `play` is where the
 /// actuator starts relative to the encoder within the play; `None` takes
 /// half the play behind the motion, or the middle at rest.
 fn simulate_segment(
-    plant: &PlantParams,
-    effects: &Effects,
+    model: &Mechanics,
     signals: &Signals,
     segment: Range<usize>,
     (initial_angle, initial_velocity): (f64, f64),
     play: Option<f64>,
     shaft: &mut Vec<f64>,
 ) {
+    let Mechanics { plant, effects, linear } = model;
     shaft.clear();
     let h = signals.dt;
     // The encoder lags the actuator by half the play while moving.
@@ -729,6 +742,10 @@ fn simulate_segment(
             break;
         }
         let (t0, t1) = (signals.torque(plant, k), signals.torque(plant, k + 1));
+        if let Some(linear) = linear {
+            motion = linear.step(&motion, t0, t1);
+            continue;
+        }
         let (direction, now_stuck) = mechanics::friction_direction(plant, effects, &motion, t0, stuck);
         stuck = now_stuck;
         let rates = |m: &mechanics::Motion, torque: f64| mechanics::motion_rates(plant, effects, m, torque, direction);
