@@ -177,17 +177,21 @@ pub struct Quantization {
 impl Quantization {
     #[inline]
     pub fn quantize(&self, angle: f64) -> f64 {
-        let counts = angle / self.step;
+        Self::nearest_count(angle / self.step) * self.step
+    }
+
+    /// The whole number of steps nearest `counts`, half away from zero.
+    #[inline]
+    pub fn nearest_count(counts: f64) -> f64 {
         // `f64::round` is a library call on the baseline x86-64 target (its
         // instruction needs SSE4.1), and model identification quantizes
         // hundreds of millions of samples; a conversion to an integer is
         // one instruction. Within ±2^52 counts (any physical angle) it
-        // rounds as `round` does, half away from zero; NaN and infinities
-        // pass through.
+        // rounds as `round` does; NaN and infinities pass through.
         if counts.abs() < 4.5e15 {
-            (counts + 0.5_f64.copysign(counts)) as i64 as f64 * self.step
+            (counts + 0.5_f64.copysign(counts)) as i64 as f64
         } else {
-            counts * self.step
+            counts
         }
     }
 }

@@ -37,7 +37,7 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::path::Path;
 
-use hydractl_plant::effects::Effects;
+use hydractl_plant::effects::{Effects, Quantization};
 use hydractl_plant::{hydraulics, mechanics, EffectKind, EffectsConfig, PlantError, PlantParams};
 use serde::{Deserialize, Serialize};
 
@@ -521,7 +521,7 @@ pub fn predict_mechanical(
             }
         }
         if let Some(q) = effects.quantization {
-            refine_on_staircase(plant, signals, q.step, effects, measured, &mut best);
+            refine_on_staircase(plant, signals, q.step, measured, &mut best);
         }
         // A diverged simulation leaves NaN, which the fit refuses.
         best.resize(segment.len(), f64::NAN);
@@ -536,7 +536,7 @@ pub fn predict_mechanical(
 /// beats `best_error`.
 fn keep_if_better(effects: &Effects, measured: &[f64], shaft: &[f64], best: &mut Vec<f64>, best_error: &mut f64) {
     let offset = match effects.quantization {
-        Some(q) => best_quantized_offset(effects, q.step, measured, shaft),
+        Some(q) => best_quantized_offset(q.step, measured, shaft),
         None => 0.0,
     };
     let error = segment_error(effects, measured, shaft, offset);
@@ -563,15 +563,29 @@ fn encoder_reading(effects: &Effects, shaft: f64) -> f64 {
 }
 
 fn segment_error(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64) -> f64 {
-    segment_error_below(effects, measured, shaft, offset, f64::INFINITY)
+    measured
+        .iter()
+        .zip(shaft)
+        .map(|(m, s)| (m - encoder_reading(effects, s + offset)).powi(2))
+        .sum()
 }
 
-/// [`segment_error`], given up (infinite) once it reaches `bound`: its
-/// terms only add, so a search that keeps the smallest is unchanged by it.
-fn segment_error_below(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64, bound: f64) -> f64 {
+/// A staircase's squared error in counts of its step (step² times the
+/// angle's), the path shifted by `shift(i)` counts at sample i: each sample
+/// costs a rounding, not the quantizer's division, in the searches that
+/// take most of a coarse encoder's fit. Given up (infinite) once it reaches
+/// `bound`: its terms only add, so a search that keeps the smallest is
+/// unchanged by it, and most of its tries are out of the race after a few
+/// samples.
+fn staircase_error_below(
+    measured_counts: &[f64],
+    path_counts: &[f64],
+    shift: impl Fn(usize) -> f64,
+    bound: f64,
+) -> f64 {
     let mut sum = 0.0;
-    for (m, s) in measured.iter().zip(shaft) {
-        sum += (m - encoder_reading(effects, s + offset)).powi(2);
+    for (i, (m, p)) in measured_counts.iter().zip(path_counts).enumerate() {
+        sum += (m - Quantization::nearest_count(p + shift(i))).powi(2);
         if sum >= bound {
             return f64::INFINITY;
         }
@@ -579,20 +593,25 @@ fn segment_error_below(effects: &Effects, measured: &[f64], shaft: &[f64], offse
     sum
 }
 
+fn in_counts(values: &[f64], step: f64) -> Vec<f64> {
+    values.iter().map(|v| v / step).collect()
+}
+
 /// With a coarse encoder, least squares on the staircase leaves the initial
 /// angle uncertain by up to half a step; this picks, within half a step, the
 /// shift of the segment that reproduces the measured staircase best.
-fn best_quantized_offset(effects: &Effects, step: f64, measured: &[f64], shaft: &[f64]) -> f64 {
+fn best_quantized_offset(step: f64, measured: &[f64], shaft: &[f64]) -> f64 {
     const TRIES: usize = 21;
+    let (measured_counts, shaft_counts) = (in_counts(measured, step), in_counts(shaft, step));
     let mut best = (f64::INFINITY, 0.0);
     for i in 0..TRIES {
-        let offset = step * (i as f64 / (TRIES - 1) as f64 - 0.5);
-        let error = segment_error_below(effects, measured, shaft, offset, best.0);
+        let offset = i as f64 / (TRIES - 1) as f64 - 0.5;
+        let error = staircase_error_below(&measured_counts, &shaft_counts, |_| offset, best.0);
         if error < best.0 {
             best = (error, offset);
         }
     }
-    best.1
+    best.1 * step
 }
 
 /// With a coarse encoder a segment's staircase holds only a few steps, and
@@ -603,14 +622,7 @@ fn best_quantized_offset(effects: &Effects, step: f64, measured: &[f64], shaft: 
 /// coarse grid and then a finer one around its best, for the shift of the
 /// segment that reproduces the measured staircase best; the velocity
 /// shifts the path by the rigid body's sensitivity.
-fn refine_on_staircase(
-    plant: &PlantParams,
-    signals: &Signals,
-    step: f64,
-    effects: &Effects,
-    measured: &[f64],
-    path: &mut [f64],
-) {
+fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measured: &[f64], path: &mut [f64]) {
     const GRID: i32 = 6;
     let n = path.len().min(measured.len());
     // A staircase that steps at least every tenth sample pins the path
@@ -621,22 +633,18 @@ fn refine_on_staircase(
     }
     let sensitivity: Vec<f64> = velocity_sensitivity(plant, signals.dt).take(n).collect();
     let span_t = sensitivity[n - 1].max(signals.dt);
-    // The squared error of a shift, given up (infinite) once it reaches
-    // `bound`: its terms only add, so the search's choices are exact, and
-    // most shifts of the grid are out of the race after a few samples.
-    let error = |d_angle: f64, d_velocity: f64, bound: f64| -> f64 {
-        let mut sum = 0.0;
-        for i in 0..n {
-            let shifted = path[i] + d_angle + d_velocity * sensitivity[i];
-            sum += (measured[i] - encoder_reading(effects, shifted)).powi(2);
-            if sum >= bound {
-                return f64::INFINITY;
-            }
-        }
-        sum
+    let (path_counts, measured_counts) = (in_counts(&path[..n], step), in_counts(&measured[..n], step));
+    let error = |d_angle: f64, d_velocity: f64, bound: f64| {
+        staircase_error_below(
+            &measured_counts,
+            &path_counts,
+            |i| d_angle + d_velocity * sensitivity[i],
+            bound,
+        )
     };
     let mut best = (error(0.0, 0.0, f64::INFINITY), 0.0, 0.0);
-    let (mut angle_span, mut velocity_span) = (0.5 * step, 2.0 * step / span_t);
+    // In counts: half a step of angle, two steps per segment of velocity.
+    let (mut angle_span, mut velocity_span) = (0.5, 2.0 / span_t);
     let (mut centre_angle, mut centre_velocity) = (0.0, 0.0);
     for _ in 0..3 {
         for a in -GRID..=GRID {
@@ -654,7 +662,7 @@ fn refine_on_staircase(
         velocity_span /= f64::from(GRID);
     }
     for (p, g) in path.iter_mut().zip(&sensitivity) {
-        *p += best.1 + best.2 * g;
+        *p += (best.1 + best.2 * g) * step;
     }
 }
 
