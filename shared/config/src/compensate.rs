@@ -16,7 +16,8 @@ pub struct Change {
     pub key: String,
     pub from: f64,
     pub to: f64,
-    /// The effect that asked for it.
+    /// The effect that asked for it, or the plant's parameter
+    /// (`load_torque`, the constant load a model fitted).
     pub effect: String,
     pub reason: String,
 }
@@ -53,13 +54,14 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
     let mut config = base.clone();
     let mut changes = Vec::new();
     let mut not_compensated = Vec::new();
-    let set = |changes: &mut Vec<Change>, key: &str, slot: &mut f64, to: f64, effect: EffectKind, reason: &str| {
+    // `cause`: the effect, or the plant's parameter, that asks for the change.
+    let set = |changes: &mut Vec<Change>, key: &str, slot: &mut f64, to: f64, cause: &str, reason: &str| {
         if *slot != to {
             changes.push(Change {
                 key: key.to_owned(),
                 from: *slot,
                 to,
-                effect: effect.name().to_owned(),
+                effect: cause.to_owned(),
                 reason: reason.to_owned(),
             });
             *slot = to;
@@ -78,7 +80,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
             "control.valve.deadzone_width",
             &mut control.valve.deadzone_width,
             deadzone.width,
-            EffectKind::Deadzone,
+            EffectKind::Deadzone.name(),
             "the shaper adds the overlap to every command, so that the spool opens as soon as a loop asks",
         );
         set(
@@ -86,7 +88,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
             "control.valve.deadzone_smoothing",
             &mut control.valve.deadzone_smoothing,
             deadzone.width,
-            EffectKind::Deadzone,
+            EffectKind::Deadzone.name(),
             "within the band's width the inverse is a line through zero, not a jump across the overlap: \
              the torque loop's command dithers around zero, and a jump there makes the torque chatter",
         );
@@ -110,7 +112,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
             "control.valve.limit",
             &mut control.valve.limit,
             limit,
-            EffectKind::Saturation,
+            EffectKind::Saturation.name(),
             reason,
         );
         // The limits of the loops whose output is a valve command.
@@ -138,7 +140,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
                 &format!("{name}.output_min"),
                 min,
                 low,
-                EffectKind::Saturation,
+                EffectKind::Saturation.name(),
                 reason,
             );
             set(
@@ -146,7 +148,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
                 &format!("{name}.output_max"),
                 max,
                 high,
-                EffectKind::Saturation,
+                EffectKind::Saturation.name(),
                 reason,
             );
         }
@@ -173,11 +175,25 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
                 &format!("{section}.coulomb"),
                 &mut load.coulomb,
                 friction.coulomb * scale,
-                EffectKind::CoulombFriction,
+                EffectKind::CoulombFriction.name(),
                 &format!(
                     "the fitted sliding friction ({:.1} N·m) pushed with the motion ahead of the loop, \
                      so that the integrator need not build it up at every reversal{units}",
                     friction.coulomb
+                ),
+            );
+        }
+        if plant.load_torque != 0.0 {
+            set(
+                &mut changes,
+                &format!("{section}.constant"),
+                &mut load.constant,
+                plant.load_torque * scale,
+                "load_torque",
+                &format!(
+                    "the model's constant load ({:.1} N·m against positive rotation: a hose's drag, \
+                     a load's mean) held ahead of the loop, so that the integrator need not carry it{units}",
+                    plant.load_torque
                 ),
             );
         }
@@ -192,7 +208,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
                 &format!("{section}.gravity_amplitude"),
                 &mut load.gravity_amplitude,
                 gravity.amplitude * scale,
-                EffectKind::GravityLoad,
+                EffectKind::GravityLoad.name(),
                 &reason,
             );
             set(
@@ -200,7 +216,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
                 &format!("{section}.gravity_offset"),
                 &mut load.gravity_offset,
                 gravity.offset,
-                EffectKind::GravityLoad,
+                EffectKind::GravityLoad.name(),
                 &reason,
             );
         }
@@ -221,7 +237,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
             "control.valve.negative_gain_ratio",
             &mut control.valve.negative_gain_ratio,
             asymmetry.ratio.clamp(0.1, 10.0),
-            EffectKind::AsymmetricGain,
+            EffectKind::AsymmetricGain.name(),
             "the shaper divides negative commands by the fitted ratio, so that both directions move the load \
              alike for the same command",
         );
@@ -242,7 +258,7 @@ pub fn compensate(base: &Config, plant: &PlantParams, effects: &Effects) -> Comp
                 "control.torque.pid.ki",
                 &mut pid.ki,
                 pid.kp / integral_time,
-                EffectKind::TimeDelay,
+                EffectKind::TimeDelay.name(),
                 &format!(
                     "the torque loop's integral time to 8 × the fitted delay ({:.1} ms), Skogestad's SIMC \
                      rule with τ_c = θ: the integrator's phase lag and the delay's together would \
@@ -362,6 +378,26 @@ mod tests {
         assert!((1e-3..=2e-2).contains(&position.coulomb), "{}", position.coulomb);
         assert!(tuned.not_compensated.is_empty(), "{:?}", tuned.not_compensated);
         assert_eq!(tuned.config.plant, base.plant);
+    }
+
+    #[test]
+    fn a_constant_load_torque_is_held_ahead_of_both_outer_loops() {
+        let base = Config::default_sim().expect("default");
+        let model = PlantParams {
+            load_torque: -25.0,
+            ..base.plant
+        };
+        let tuned = compensate(&base, &model, &Effects::none());
+        assert_eq!(tuned.config.control.cascade.friction.load.constant, -25.0);
+        let position = tuned.config.control.position_only.friction.load.constant;
+        assert!((position + 25.0 * command_per_torque(&model)).abs() < 1e-15);
+        assert!(
+            tuned.changes.iter().all(|c| c.effect == "load_torque"),
+            "{:?}",
+            tuned.changes
+        );
+        assert_eq!(tuned.changes.len(), 2);
+        assert_eq!(tuned.config.plant, base.plant, "the plant simulated stays the base's");
     }
 
     #[test]

@@ -86,8 +86,8 @@ pub struct FrictionCompensatorParams {
 }
 
 /// The torque the load takes, answered ahead of the loop rather than by
-/// its integrator: the Coulomb friction and gravity load a fitted model
-/// found (`hydractl model compensate`). In the units of the outer loop's
+/// its integrator: the Coulomb friction, gravity load and constant load a
+/// fitted model found (`hydractl model compensate`). In the units of the outer loop's
 /// output: N·m of torque reference in the cascade, where the torque loop
 /// then makes it, and valve command in position-only control. Zero: none.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -104,6 +104,9 @@ pub struct LoadFeedforward {
     /// measured angle θ (rad), as the plant's `gravity_load` writes it.
     pub gravity_amplitude: f64,
     pub gravity_offset: f64,
+    /// A constant load against positive rotation (the plant's
+    /// `load_torque`: a hose's drag, a load's mean).
+    pub constant: f64,
 }
 
 impl Default for LoadFeedforward {
@@ -113,6 +116,7 @@ impl Default for LoadFeedforward {
             coulomb_band: 0.01,
             gravity_amplitude: 0.0,
             gravity_offset: 0.0,
+            constant: 0.0,
         }
     }
 }
@@ -122,7 +126,8 @@ impl LoadFeedforward {
         require_non_negative("load.coulomb", self.coulomb)?;
         require_positive("load.coulomb_band", self.coulomb_band)?;
         require_finite("load.gravity_amplitude", self.gravity_amplitude)?;
-        require_finite("load.gravity_offset", self.gravity_offset)
+        require_finite("load.gravity_offset", self.gravity_offset)?;
+        require_finite("load.constant", self.constant)
     }
 
     /// The feed-forward at the blended velocity and the measured angle; an
@@ -138,7 +143,7 @@ impl LoadFeedforward {
         } else {
             0.0
         };
-        coulomb + gravity
+        coulomb + gravity + self.constant
     }
 }
 
@@ -295,6 +300,7 @@ mod tests {
             coulomb_band: 0.01,
             gravity_amplitude: 300.0,
             gravity_offset: 0.2,
+            constant: 0.0,
         };
         let mut c = FrictionCompensator::new(FrictionCompensatorParams {
             alpha_width: 0.1,
@@ -323,5 +329,17 @@ mod tests {
             ..load
         };
         assert!(bad.validate().is_err());
+        // A constant load adds itself, whatever the motion.
+        let constant = LoadFeedforward {
+            constant: -12.0,
+            ..load
+        };
+        assert!((constant.eval(0.5, 1.0) - load.eval(0.5, 1.0) + 12.0).abs() < 1e-12);
+        assert!(LoadFeedforward {
+            constant: f64::NAN,
+            ..load
+        }
+        .validate()
+        .is_err());
     }
 }

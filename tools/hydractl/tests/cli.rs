@@ -711,6 +711,67 @@ fn compensating_a_fitted_deadzone_lowers_the_tracking_error_on_the_machine() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// A constant load of 150 N·m on the machine (a hose's drag), measured
+/// where the torque is (`tau`): `model fit` finds it, and the tuned config
+/// holds it ahead of the outer loop instead of leaving it to the
+/// integrator.
+#[test]
+fn compensating_a_fitted_load_torque_lowers_the_tracking_error_on_the_machine() {
+    let dir = scratch("compensate-load-torque");
+    let sim = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/sim.toml")).expect("config");
+    let loaded = sim.replacen("\nload_torque = 0.0 ", "\nload_torque = 150.0 ", 1);
+    assert_ne!(loaded, sim, "config/sim.toml states the plant's load_torque");
+    let base = dir.join("base.toml");
+    std::fs::write(&base, loaded).expect("write");
+    let run = dir.join("run.csv");
+    let before = tracking_rms(&dir, Some(&base), None, Some(&run));
+    // The machine's torque reading and its angle: the record of an axis
+    // with a torque sensor.
+    let text = std::fs::read_to_string(&run).expect("run");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).expect(name);
+    let (t, torque, theta) = (column("t"), column("torque"), column("theta"));
+    let mut record = String::from("t,tau,theta\n");
+    for line in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        record += &format!("{},{},{}\n", fields[t], fields[torque], fields[theta]);
+    }
+    let measured = dir.join("tau.csv");
+    std::fs::write(&measured, record).expect("write");
+    let model = dir.join("model.toml");
+    run_silent(
+        hydractl()
+            .args(["model", "fit", "--data"])
+            .arg(&measured)
+            .arg("--out")
+            .arg(&model),
+    );
+    let tuned = dir.join("tuned.toml");
+    let report: serde_json::Value = serde_json::from_str(&run_silent(
+        hydractl()
+            .args(["model", "compensate", "--json", "--model"])
+            .arg(&model)
+            .arg("--config")
+            .arg(&base)
+            .arg("--out")
+            .arg(&tuned),
+    ))
+    .expect("json");
+    let change = report["changes"]
+        .as_array()
+        .expect("changes")
+        .iter()
+        .find(|c| c["key"] == "control.cascade.friction.load.constant")
+        .unwrap_or_else(|| panic!("no constant load fed forward: {report}"));
+    let fitted = change["to"].as_f64().expect("to");
+    assert!((fitted - 150.0).abs() < 0.05 * 150.0, "fitted load torque {fitted}");
+    assert_eq!(change["effect"], "load_torque");
+    let after = tracking_rms(&dir, Some(&tuned), None, None);
+    assert!(after <= 0.3 * before, "tracking RMS {before} → {after}: not 70 % lower");
+    std::fs::remove_dir_all(dir).ok();
+}
+
 /// The catalog's Coulomb friction (60 N·m sliding, 90 breakaway): the fitted
 /// level, pushed with the motion ahead of the outer loop.
 #[test]
