@@ -87,9 +87,10 @@ pub struct FrictionCompensatorParams {
 
 /// The torque the load takes, answered ahead of the loop rather than by
 /// its integrator: the Coulomb friction, gravity load and constant load a
-/// fitted model found (`hydractl model compensate`). In the units of the outer loop's
-/// output: N·m of torque reference in the cascade, where the torque loop
-/// then makes it, and valve command in position-only control. Zero: none.
+/// fitted model found (`hydractl model compensate`). In the units of the
+/// outer loop's output: N·m of torque reference in the cascade, where the
+/// torque loop then makes it, and valve command in position-only control.
+/// Zero: none.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LoadFeedforward {
