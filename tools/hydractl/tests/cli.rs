@@ -229,13 +229,7 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
     let dir = scratch("model");
     let csv = deadzone_data(&dir);
     let baseline = dir.join("baseline.toml");
-    run_silent(
-        hydractl()
-            .args(["model", "fit", "--data"])
-            .arg(&csv)
-            .arg("--out")
-            .arg(&baseline),
-    );
+    fit_model(&csv, &baseline);
 
     let json = run_silent(
         hydractl()
@@ -633,6 +627,28 @@ fn tracking_rms(dir: &Path, config: Option<&Path>, effect: Option<&str>, csv: Op
     summary["rms_tracking_error_rad"].as_f64().expect("rms")
 }
 
+/// `model fit --data data --out model`.
+fn fit_model(data: &Path, model: &Path) {
+    run_silent(
+        hydractl()
+            .args(["model", "fit", "--data"])
+            .arg(data)
+            .arg("--out")
+            .arg(model),
+    );
+}
+
+/// `model compensate --json` of `config` (the built-in one if `None`) from
+/// `model` into `tuned`: its report.
+fn compensate(model: &Path, config: Option<&Path>, tuned: &Path) -> serde_json::Value {
+    let mut command = hydractl();
+    command.args(["model", "compensate", "--json", "--model"]).arg(model);
+    if let Some(config) = config {
+        command.arg("--config").arg(config);
+    }
+    serde_json::from_str(&run_silent(command.arg("--out").arg(tuned))).expect("json")
+}
+
 /// The path a user takes on a plant with `effect` hidden: record, fit,
 /// add the effect diagnose names (it must be `named`), compensate, run
 /// again under the tuned config on the same plant. The tracking error's
@@ -641,13 +657,7 @@ fn compensated(dir: &Path, effect: &str, named: &str) -> (f64, f64, Vec<String>)
     let csv = dir.join("run.csv");
     let before = tracking_rms(dir, None, Some(effect), Some(&csv));
     let baseline = dir.join("baseline.toml");
-    run_silent(
-        hydractl()
-            .args(["model", "fit", "--data"])
-            .arg(&csv)
-            .arg("--out")
-            .arg(&baseline),
-    );
+    fit_model(&csv, &baseline);
     let diagnosis: serde_json::Value = serde_json::from_str(&run_silent(
         hydractl()
             .args(["model", "diagnose", "--json", "--data"])
@@ -669,14 +679,7 @@ fn compensated(dir: &Path, effect: &str, named: &str) -> (f64, f64, Vec<String>)
             .arg(&model),
     );
     let tuned = dir.join("tuned.toml");
-    let report: serde_json::Value = serde_json::from_str(&run_silent(
-        hydractl()
-            .args(["model", "compensate", "--json", "--model"])
-            .arg(&model)
-            .arg("--out")
-            .arg(&tuned),
-    ))
-    .expect("json");
+    let report = compensate(&model, None, &tuned);
     let keys = report["changes"]
         .as_array()
         .expect("changes")
@@ -698,13 +701,8 @@ fn compensating_a_fitted_deadzone_lowers_the_tracking_error_on_the_machine() {
     let clean = dir.join("clean.toml");
     std::fs::write(&clean, "[plant]\n").expect("write");
     let untouched = dir.join("untouched.toml");
-    run_silent(
-        hydractl()
-            .args(["model", "compensate", "--model"])
-            .arg(&clean)
-            .arg("--out")
-            .arg(&untouched),
-    );
+    let report = compensate(&clean, None, &untouched);
+    assert_eq!(report["changes"].as_array().map(Vec::len), Some(0), "{report}");
     let base = tracking_rms(&dir, None, None, None);
     let same = tracking_rms(&dir, Some(&untouched), None, None);
     assert!(same <= 1.02 * base, "tracking RMS {base} → {same} with no effect");
@@ -740,24 +738,9 @@ fn compensating_a_fitted_load_torque_lowers_the_tracking_error_on_the_machine() 
     let measured = dir.join("tau.csv");
     std::fs::write(&measured, record).expect("write");
     let model = dir.join("model.toml");
-    run_silent(
-        hydractl()
-            .args(["model", "fit", "--data"])
-            .arg(&measured)
-            .arg("--out")
-            .arg(&model),
-    );
+    fit_model(&measured, &model);
     let tuned = dir.join("tuned.toml");
-    let report: serde_json::Value = serde_json::from_str(&run_silent(
-        hydractl()
-            .args(["model", "compensate", "--json", "--model"])
-            .arg(&model)
-            .arg("--config")
-            .arg(&base)
-            .arg("--out")
-            .arg(&tuned),
-    ))
-    .expect("json");
+    let report = compensate(&model, Some(&base), &tuned);
     let change = report["changes"]
         .as_array()
         .expect("changes")
