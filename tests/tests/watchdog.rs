@@ -113,7 +113,10 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
             .map(|k| s[k].as_f64().expect("loop step"))
             .into_iter()
             .fold(0.02, f64::max);
-        assert!(step <= usual, "{s}");
+        // A command pinned at a limit steps by the same amount on either
+        // side of a swap, up to rounding (0.05000000000000002 against
+        // 0.05000000000000001 once).
+        assert!(step <= usual + 1e-12, "{s}");
     }
     assert_eq!(swaps[1]["stage"], "torque");
     assert_eq!(
