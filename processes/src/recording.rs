@@ -14,6 +14,9 @@ use hydractl_samples::{visit_kind, CanFrameSample, KindVisitor, Recordable, Reco
 /// Samples a tap keeps for the recorder between two drains: 256 ms of a
 /// 1 kHz loop, far more than the recorder's 5 ms tick.
 const TAP_BUFFER: usize = 256;
+/// Frames a CAN bus's tap keeps: the bus carries several frames per
+/// cycle, so the same stall needs a longer buffer.
+const CAN_TAP_BUFFER: usize = hydractl_bus::CAN_RX_MAX_BUFFER;
 
 /// Sequence numbers missing between two samples a tap received.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
@@ -46,7 +49,7 @@ impl<T: Recordable> Tap for TypedTap<T> {
             );
             writer.write_sample(self.channel, &sample)?;
         }
-        Ok(count.missing())
+        Ok(count.missing(TAP_BUFFER))
     }
 }
 
@@ -66,10 +69,11 @@ impl SeqCount {
         *last_seq = Some(last_seq.map_or(seq, |last| last.max(seq)));
     }
 
-    fn missing(&self) -> Missing {
+    /// What was skipped, for a reader that keeps `buffer` samples.
+    fn missing(&self, buffer: usize) -> Missing {
         // iceoryx2 does not report an overflow; it can only have happened
         // if the buffer was full, i.e. if this drain took a whole buffer.
-        if self.received >= TAP_BUFFER {
+        if self.received >= buffer {
             Missing {
                 dropped: self.skipped,
                 gaps: 0,
@@ -102,7 +106,7 @@ impl Tap for CanTap {
             encode_frame(&sample, &self.interface, &mut self.encoded);
             writer.write_encoded(self.channel, sample.seq, sample.time_ns, &self.encoded)?;
         }
-        Ok(count.missing())
+        Ok(count.missing(CAN_TAP_BUFFER))
     }
 }
 
@@ -173,7 +177,7 @@ impl Recorder {
                 return Ok(false);
             };
             let tap = CanTap {
-                reader: Reader::open(bus, name, TAP_BUFFER)?,
+                reader: Reader::open(bus, name, CAN_TAP_BUFFER)?,
                 channel: self.writer.add_channel(name, &CAN_FRAME_KIND)?,
                 interface: interface.to_owned(),
                 last_seq: None,

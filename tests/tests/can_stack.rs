@@ -68,7 +68,7 @@ impl BusTap {
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let thread = std::thread::spawn(move || {
             let bus = Bus::open(&scope, "bustap").expect("node");
-            let port = VirtualCanPort::open(&bus, "vcan0", &[]).expect("tap");
+            let port = VirtualCanPort::monitor(&bus, "vcan0").expect("tap");
             ready_tx.send(()).expect("ready");
             let mut frames = Vec::new();
             while !flag.load(Ordering::Relaxed) {

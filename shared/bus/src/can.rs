@@ -145,13 +145,24 @@ pub struct VirtualCanPort {
 
 impl VirtualCanPort {
     pub fn open(bus: &Bus, interface: &str, filters: &[Filter]) -> Result<Self, CanPortError> {
+        Self::open_keeping(bus, interface, filters, VIRTUAL_RX_BUFFER)
+    }
+
+    /// A station that listens to every frame and must miss none (a
+    /// candump, a test's tap): it keeps [`crate::CAN_RX_MAX_BUFFER`]
+    /// frames, most of a second of the bus, for when it is late to read.
+    pub fn monitor(bus: &Bus, interface: &str) -> Result<Self, CanPortError> {
+        Self::open_keeping(bus, interface, &[], crate::CAN_RX_MAX_BUFFER)
+    }
+
+    fn open_keeping(bus: &Bus, interface: &str, filters: &[Filter], kept: usize) -> Result<Self, CanPortError> {
         let virtual_error = |source| CanPortError::Virtual {
             interface: interface.to_string(),
             source,
         };
         Ok(Self {
             interface: interface.to_string(),
-            rx: Inlet::open(bus, &service::can_rx(interface), VIRTUAL_RX_BUFFER).map_err(virtual_error)?,
+            rx: Inlet::open(bus, &service::can_rx(interface), kept).map_err(virtual_error)?,
             tx: Outlet::open(bus, &service::can_tx(interface)).map_err(virtual_error)?,
             station: std::process::id(),
             filters: Filters::new(interface, filters)?,

@@ -13,6 +13,10 @@ use crate::{Bus, BusError};
 /// Safe overflow (iceoryx2's default) means a slow reader loses its oldest
 /// samples and never blocks a publisher.
 const MAX_BUFFER: usize = 256;
+/// A CAN bus's delivered traffic may be kept longer for a reader that
+/// wants every frame (the recorder): the stack's bus carries about six
+/// frames per millisecond, so [`MAX_BUFFER`] would be only 43 ms of it.
+pub const CAN_RX_MAX_BUFFER: usize = 4096;
 const MAX_SUBSCRIBERS: usize = 16;
 // The handover acknowledgements have one publisher per controller and plant.
 const MAX_PUBLISHERS: usize = 8;
@@ -29,11 +33,20 @@ fn data_service<T: ZeroCopySend + Debug + Copy + 'static>(
     bus.node()
         .service_builder(service_name)
         .publish_subscribe::<T>()
-        .subscriber_max_buffer_size(MAX_BUFFER)
+        .subscriber_max_buffer_size(max_buffer(service_name.as_str()))
         .max_subscribers(MAX_SUBSCRIBERS)
         .max_publishers(MAX_PUBLISHERS)
         .max_nodes(MAX_NODES)
         .history_size(1)
+}
+
+/// The most samples a reader of the service `name` may keep.
+pub fn max_buffer(name: &str) -> usize {
+    if hydractl_samples::service::can_rx_interface(name).is_some() {
+        CAN_RX_MAX_BUFFER
+    } else {
+        MAX_BUFFER
+    }
 }
 
 fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
@@ -164,12 +177,13 @@ pub struct Reader<T: ZeroCopySend + Debug + Copy + 'static> {
 
 impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
     /// `buffer` samples are kept for this reader: 1–4 for one that only
-    /// wants the newest, more for a monitor that wants every one.
+    /// wants the newest, more for a monitor that wants every one, at most
+    /// [`max_buffer`]`(name)`.
     pub fn open(bus: &Bus, name: &str, buffer: usize) -> Result<Self, BusError> {
         let (data, _) = open_service::<T>(bus, name)?;
         let subscriber = data
             .subscriber_builder()
-            .buffer_size(buffer.clamp(1, MAX_BUFFER))
+            .buffer_size(buffer.clamp(1, max_buffer(name)))
             .create()
             .map_err(|e| BusError::ipc(format!("subscriber on {name}"), e))?;
         Ok(Self {

@@ -78,7 +78,7 @@ fn dump(config: Option<PathBuf>, log: Option<PathBuf>, duration: Option<f64>) ->
         bail!("--duration must be a positive number of seconds");
     }
     let (bus, interface) = open_virtual_bus(config, "candump")?;
-    let port = VirtualCanPort::open(&bus, &interface, &[])?;
+    let port = VirtualCanPort::monitor(&bus, &interface)?;
     let mut out: Box<dyn Write> = match &log {
         Some(path) => Box::new(std::io::BufWriter::new(
             std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
