@@ -93,6 +93,17 @@ pub fn open_port(
     })
 }
 
+/// A port that listens to every frame of `profile`'s bus and must miss
+/// none (a run's bus statistics): on the virtual bus a
+/// [`VirtualCanPort::monitor`], on SocketCAN an unfiltered socket, whose
+/// queue is the kernel's.
+pub fn open_monitor(bus: &Bus, profile: &hydractl_can::profile::Profile) -> Result<Box<dyn CanPort>, CanPortError> {
+    Ok(match profile.transport {
+        hydractl_can::profile::Transport::Socketcan => Box::new(SocketCanPort::open(&profile.interface, &[])?),
+        hydractl_can::profile::Transport::Virtual => Box::new(VirtualCanPort::monitor(bus, &profile.interface)?),
+    })
+}
+
 /// Both ports' filter set, fixed size.
 #[derive(Debug, Clone, Copy)]
 struct Filters {

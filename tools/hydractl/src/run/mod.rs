@@ -399,7 +399,7 @@ pub fn run(mut args: RunArgs) -> Result<()> {
     // The virtual bus and the simulated ECUs are the machine here: they are
     // there before the stack and outlive it, so that the valve's last
     // frames reach the valve.
-    let _machine = match &config.can {
+    let machine = match &config.can {
         Some(can) if can.transport == hydractl_can::profile::Transport::Virtual => {
             Some(VirtualMachine::start(&scope, &dir, args.config.as_deref())?)
         }
@@ -444,9 +444,12 @@ pub fn run(mut args: RunArgs) -> Result<()> {
             .map_or(0, |p| p.restarts);
         summary.recording = Some(recording_report(out, summary.recorder)?);
     }
-    // Our last port closed, nothing of the run is alive: what the
-    // supervisor could not remove while we still read is removed now.
+    // Our last port closed and the machine stopped, nothing of the run is
+    // alive: what the supervisor could not remove while we still read is
+    // removed now. Stopped after this, the machine's processes left their
+    // node counter (`….global_mgmt`) and the run's folder behind.
     drop(recorder);
+    drop(machine);
     scope.clean_stale()?;
     if let Some(path) = &args.summary_json {
         std::fs::write(path, serde_json::to_string_pretty(&summary)? + "\n")
@@ -657,7 +660,7 @@ fn watch(
     let mut can_watch = match &config.can {
         Some(can) => {
             let profile = can.resolve()?;
-            let port = hydractl_bus::can::open_port(&bus, &profile, &[])?;
+            let port = hydractl_bus::can::open_monitor(&bus, &profile)?;
             // Every reading, for the machine's PDOs that were not there in time.
             let readings: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 256)?;
             Some((port, hydractl_can::stats::BusStats::new(&profile), profile, readings))
