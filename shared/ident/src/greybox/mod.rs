@@ -307,7 +307,9 @@ pub fn predict_whole(
     // fit sees it move continuously; the plant gets the delayed command.
     let mut undelayed = *effects;
     undelayed.time_delay = None;
-    let Ok(mut machine) = hydractl_plant::Plant::new(*plant, undelayed, signals.dt / substeps as f64) else {
+    let Ok(mut machine) = hydractl_plant::Plant::new(*plant, undelayed, signals.dt / substeps as f64)
+        .map(hydractl_plant::Plant::stepping_exactly_where_linear)
+    else {
         return;
     };
     let neutral = machine.neutral_pressure();
