@@ -5,7 +5,9 @@
 //! velocity (eq. 5), and, with `load_flexibility`, the load's angle and
 //! velocity. Classic RK4 per step; the friction discontinuity is handled
 //! outside the RK4 stages by an explicit stick/slip state, so the velocity
-//! is exactly zero while stuck and never flickers in sign.
+//! is exactly zero while stuck and never flickers in sign. A fit may ask
+//! for the exact step where the rotator is linear by pieces instead
+//! ([`Plant::stepping_exactly_where_linear`]).
 
 use nalgebra::{SMatrix, SVector};
 
