@@ -302,7 +302,7 @@ impl Plant {
         Ok(plant)
     }
 
-    /// Steps exactly where the rotator is linear by pieces ([`ExactStep`])
+    /// Steps exactly where the rotator is linear by pieces (`ExactStep`)
     /// and by RK4 elsewhere: for a fit, which simulates the model thousands of times,
     /// one matrix product a step in place of four evaluations of the
     /// rates. A step that starts or ends with a pressure at a bound or the
