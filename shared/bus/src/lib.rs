@@ -14,7 +14,7 @@ pub mod semaphore_service;
 mod wait;
 
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
-pub use outlet::{max_buffer, Inlet, Outlet, PublisherWatch, Reader, CAN_RX_MAX_BUFFER};
+pub use outlet::{Inlet, Outlet, PublisherWatch, Reader, CAN_RX_MAX_BUFFER};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{guarded, run_loop, run_single, run_until, wait_input, Flow, Input, LoopExit, Wake};
 

@@ -15,7 +15,8 @@ use crate::{Bus, BusError};
 const MAX_BUFFER: usize = 256;
 /// A CAN bus's delivered traffic may be kept longer for a reader that
 /// wants every frame (the recorder): the stack's bus carries about six
-/// frames per millisecond, so [`MAX_BUFFER`] would be only 43 ms of it.
+/// frames per millisecond, so the 256 of other services would be only 43
+/// ms of it.
 pub const CAN_RX_MAX_BUFFER: usize = 4096;
 const MAX_SUBSCRIBERS: usize = 16;
 // The handover acknowledgements have one publisher per controller and plant.
@@ -41,7 +42,7 @@ fn data_service<T: ZeroCopySend + Debug + Copy + 'static>(
 }
 
 /// The most samples a reader of the service `name` may keep.
-pub fn max_buffer(name: &str) -> usize {
+fn max_buffer(name: &str) -> usize {
     if hydractl_samples::service::can_rx_interface(name).is_some() {
         CAN_RX_MAX_BUFFER
     } else {
@@ -178,7 +179,7 @@ pub struct Reader<T: ZeroCopySend + Debug + Copy + 'static> {
 impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
     /// `buffer` samples are kept for this reader: 1–4 for one that only
     /// wants the newest, more for a monitor that wants every one, at most
-    /// [`max_buffer`]`(name)`.
+    /// 256 ([`CAN_RX_MAX_BUFFER`] on a CAN bus's delivered frames).
     pub fn open(bus: &Bus, name: &str, buffer: usize) -> Result<Self, BusError> {
         let (data, _) = open_service::<T>(bus, name)?;
         let subscriber = data
