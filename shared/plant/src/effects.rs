@@ -27,12 +27,24 @@ impl Deadzone {
     #[inline]
     pub fn opening(&self, spool: f64) -> f64 {
         let from_centre = spool - self.offset;
+        match self.side(spool) {
+            std::cmp::Ordering::Greater => from_centre - self.width,
+            std::cmp::Ordering::Less => from_centre + self.width,
+            std::cmp::Ordering::Equal => 0.0,
+        }
+    }
+
+    /// Where the spool is against the overlap: below it, within it (its
+    /// edges included), above it.
+    #[inline]
+    pub fn side(&self, spool: f64) -> std::cmp::Ordering {
+        let from_centre = spool - self.offset;
         if from_centre > self.width {
-            from_centre - self.width
+            std::cmp::Ordering::Greater
         } else if from_centre < -self.width {
-            from_centre + self.width
+            std::cmp::Ordering::Less
         } else {
-            0.0
+            std::cmp::Ordering::Equal
         }
     }
 }

@@ -11,7 +11,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::effects::Effects;
+use crate::effects::{Deadzone, Effects};
 use crate::hydraulics;
 use crate::mechanics::{self, Motion};
 use crate::{PlantError, PlantParams};
@@ -117,9 +117,10 @@ impl DelayLine {
 struct ExactStep {
     /// Below the dead band (or a closing spool), inside it, above it.
     pieces: [Option<AffineStep>; 3],
-    /// The dead band's centre and half-width; `None` where one affine step
-    /// holds for every spool.
-    band: Option<(f64, f64)>,
+    /// The dead band (of width 0 for an asymmetric gain alone, whose
+    /// pieces are the spool's signs); `None` where one affine step holds
+    /// for every spool.
+    band: Option<Deadzone>,
     travel_limit: Option<f64>,
 }
 
@@ -192,13 +193,22 @@ impl ExactStep {
         let mut free = plant.clone();
         free.effects.saturation = None;
         let piecewise = e.deadzone.is_some() || e.asymmetric_gain.is_some();
-        let band = piecewise.then(|| e.deadzone.map_or((0.0, 0.0), |d| (d.offset, d.width)));
+        let band = piecewise.then(|| {
+            e.deadzone.unwrap_or(Deadzone {
+                width: 0.0,
+                offset: 0.0,
+            })
+        });
         let at = |spool: f64| {
             let mut reference = [0.0; STATES];
             reference[SPOOL] = spool;
             reference
         };
-        let pieces = if let Some((centre, half_width)) = band {
+        let pieces = if let Some(Deadzone {
+            width: half_width,
+            offset: centre,
+        }) = band
+        {
             [
                 AffineStep::about(&free, at(centre - half_width - 1.0), -1.0),
                 (half_width > 0.0)
@@ -220,16 +230,10 @@ impl ExactStep {
     /// everywhere, without pieces), 2 above.
     #[inline]
     fn piece(&self, spool: f64) -> usize {
-        let Some((centre, half_width)) = self.band else {
-            return 1;
-        };
-        let from_centre = spool - centre;
-        if from_centre > half_width {
-            2
-        } else if from_centre < -half_width {
-            0
-        } else {
-            1
+        match self.band.map(|band| band.side(spool)) {
+            Some(std::cmp::Ordering::Less) => 0,
+            None | Some(std::cmp::Ordering::Equal) => 1,
+            Some(std::cmp::Ordering::Greater) => 2,
         }
     }
 
@@ -485,7 +489,7 @@ fn add_scaled(x: &[f64; STATES], k: &[f64; STATES], h: f64) -> [f64; STATES] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::effects::{AsymmetricGain, CoulombFriction, Deadzone, LoadFlexibility, Saturation};
+    use crate::effects::{AsymmetricGain, CoulombFriction, LoadFlexibility, Saturation};
 
     /// The command a test drives with: a sine and a step, inside the
     /// pressures' bounds.
@@ -571,7 +575,6 @@ mod tests {
                 errors(&driven(exact, hold, 1, 2.0), &reference, &params),
                 errors(&rk4, &reference, &params),
             );
-            eprintln!("{name}: exact {by_exact:?}, rk4 {by_rk4:?}");
             for (e, r) in by_exact.iter().zip(by_rk4) {
                 assert!(*e <= 1e-9 + 1.5 * r, "{name}: {by_exact:?} against RK4's {by_rk4:?}");
             }
