@@ -197,14 +197,18 @@ impl Quantization {
     pub fn nearest_count(counts: f64) -> f64 {
         // `f64::round` is a library call on the baseline x86-64 target (its
         // instruction needs SSE4.1), and model identification quantizes
-        // hundreds of millions of samples; a conversion to an integer is
-        // one instruction. Within ±2^52 counts (any physical angle) it
-        // rounds as `round` does; NaN and infinities pass through.
-        if counts.abs() < 4.5e15 {
-            (counts + 0.5_f64.copysign(counts)) as i64 as f64
-        } else {
-            counts
-        }
+        // hundreds of millions of samples. Adding and taking away 2^52
+        // rounds to the nearest whole number (ties to even), and a tie
+        // rounded down is moved up: arithmetic and selects only, with no
+        // branch or integer conversion, so blocks of samples round
+        // together. From 2^52 on every f64 is whole; NaN and infinities
+        // pass through.
+        const WHOLE_FROM: f64 = 4_503_599_627_370_496.0;
+        let magnitude = counts.abs();
+        let even = (magnitude + WHOLE_FROM) - WHOLE_FROM;
+        let nearest = if magnitude - even == 0.5 { even + 1.0 } else { even };
+        let nearest = if magnitude < WHOLE_FROM { nearest } else { magnitude };
+        nearest.copysign(counts)
     }
 }
 
@@ -701,6 +705,21 @@ mod tests {
         assert_eq!(q.quantize(-0.5 * q.step), -q.step);
         assert!(q.quantize(f64::NAN).is_nan());
         assert_eq!(q.quantize(f64::INFINITY), f64::INFINITY);
+        // Where adding a half would round, and around 2^52.
+        let just_below_half = 0.5_f64.next_down();
+        for counts in [
+            just_below_half,
+            -just_below_half,
+            2.5,
+            -3.5,
+            1e15 + 0.5,
+            4_503_599_627_370_495.5,
+            4_503_599_627_370_497.0,
+            1e300,
+            -0.0,
+        ] {
+            assert_eq!(Quantization::nearest_count(counts), counts.round(), "{counts}");
+        }
     }
 
     #[test]

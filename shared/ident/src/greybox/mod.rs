@@ -585,12 +585,32 @@ fn staircase_error_below(
     shift: impl Fn(usize) -> f64,
     bound: f64,
 ) -> f64 {
+    // The terms of a block are independent and computed together; their
+    // sum keeps the samples' order, so it is the sum sample by sample, and
+    // a sum that only grows reaches the bound within a block if and only
+    // if at its end. (A check per sample held the roundings in line behind
+    // the sum: a coarse encoder's fit took half as long again.)
+    const BLOCK: usize = 8;
+    let n = measured_counts.len().min(path_counts.len());
+    let term = |i: usize, measured: f64, path: f64| (measured - Quantization::nearest_count(path + shift(i))).powi(2);
     let mut sum = 0.0;
-    for (i, (m, p)) in measured_counts.iter().zip(path_counts).enumerate() {
-        sum += (m - Quantization::nearest_count(p + shift(i))).powi(2);
+    let blocks = measured_counts[..n]
+        .chunks_exact(BLOCK)
+        .zip(path_counts[..n].chunks_exact(BLOCK));
+    for (b, (measured, path)) in blocks.enumerate() {
+        let terms: [f64; BLOCK] = std::array::from_fn(|j| term(b * BLOCK + j, measured[j], path[j]));
+        for t in terms {
+            sum += t;
+        }
         if sum >= bound {
             return f64::INFINITY;
         }
+    }
+    for i in n - n % BLOCK..n {
+        sum += term(i, measured_counts[i], path_counts[i]);
+    }
+    if sum >= bound {
+        return f64::INFINITY;
     }
     sum
 }
@@ -605,15 +625,31 @@ fn in_counts(values: &[f64], step: f64) -> Vec<f64> {
 fn best_quantized_offset(step: f64, measured: &[f64], shaft: &[f64]) -> f64 {
     const TRIES: usize = 21;
     let (measured_counts, shaft_counts) = (in_counts(measured, step), in_counts(shaft, step));
-    let mut best = (f64::INFINITY, 0.0);
-    for i in 0..TRIES {
-        let offset = i as f64 / (TRIES - 1) as f64 - 0.5;
-        let error = staircase_error_below(&measured_counts, &shaft_counts, |_| offset, best.0);
-        if error < best.0 {
-            best = (error, offset);
+    let offset = |i: usize| i as f64 / (TRIES - 1) as f64 - 0.5;
+    // The path comes from least squares on the staircase, so no shift is
+    // the likely best: tried first, it bounds the others' sums from their
+    // first samples on (a coarse encoder's fit twice as fast).
+    let best = first_of_least(TRIES, TRIES / 2, |i, bound| {
+        staircase_error_below(&measured_counts, &shaft_counts, |_| offset(i), bound)
+    });
+    offset(best) * step
+}
+
+/// The first of `count` candidates (by index) with the least error, whose
+/// errors `error(i, bound)` are given up (infinite) once they reach
+/// `bound`. Tried from the `likely` one, whose error bounds the others from
+/// the start; the answer is that of trying them in order.
+fn first_of_least(count: usize, likely: usize, error: impl Fn(usize, f64) -> f64) -> usize {
+    let mut best = (error(likely, f64::INFINITY), likely);
+    for i in (0..count).filter(|&i| i != likely) {
+        // An earlier candidate wins a tie, so it may reach the best error.
+        let bound = if i < best.1 { best.0.next_up() } else { best.0 };
+        let e = error(i, bound);
+        if e < best.0 || (e == best.0 && i < best.1) {
+            best = (e, i);
         }
     }
-    best.1 * step
+    best.1
 }
 
 /// With a coarse encoder a segment's staircase holds only a few steps, and
