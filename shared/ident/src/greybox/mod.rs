@@ -573,7 +573,8 @@ fn segment_error(effects: &Effects, measured: &[f64], shaft: &[f64], offset: f64
 }
 
 /// A staircase's squared error in counts of its step (step² times the
-/// angle's), the path shifted by `shift(i)` counts at sample i: each sample
+/// angle's), the path shifted by `shift(i)` counts at sample i, one shift
+/// at a time (see [`staircase_errors`] for a grid of them): each sample
 /// costs a rounding, not the quantizer's division, in the searches that
 /// take most of a coarse encoder's fit. Given up (infinite) once it reaches
 /// `bound`: its terms only add, so a search that keeps the smallest is
@@ -585,11 +586,11 @@ fn staircase_error_below(
     shift: impl Fn(usize) -> f64,
     bound: f64,
 ) -> f64 {
-    // The terms of a block are independent and computed together; their
-    // sum keeps the samples' order, so it is the sum sample by sample, and
-    // a sum that only grows reaches the bound within a block if and only
-    // if at its end. (A check per sample held the roundings in line behind
-    // the sum: a coarse encoder's fit took half as long again.)
+    // The terms are whole numbers, so their sum is exact in any order: a
+    // block's terms are computed and added together, and a sum that only
+    // grows reaches the bound within a block if and only if at its end.
+    // (Sample by sample, each rounding and check waited for the sum: a
+    // coarse encoder's fit took half as long again.)
     const BLOCK: usize = 8;
     let n = measured_counts.len().min(path_counts.len());
     let term = |i: usize, measured: f64, path: f64| (measured - Quantization::nearest_count(path + shift(i))).powi(2);
@@ -598,10 +599,8 @@ fn staircase_error_below(
         .chunks_exact(BLOCK)
         .zip(path_counts[..n].chunks_exact(BLOCK));
     for (b, (measured, path)) in blocks.enumerate() {
-        let terms: [f64; BLOCK] = std::array::from_fn(|j| term(b * BLOCK + j, measured[j], path[j]));
-        for t in terms {
-            sum += t;
-        }
+        let t: [f64; BLOCK] = std::array::from_fn(|j| term(b * BLOCK + j, measured[j], path[j]));
+        sum += ((t[0] + t[1]) + (t[2] + t[3])) + ((t[4] + t[5]) + (t[6] + t[7]));
         if sum >= bound {
             return f64::INFINITY;
         }
@@ -615,41 +614,122 @@ fn staircase_error_below(
     sum
 }
 
-fn in_counts(values: &[f64], step: f64) -> Vec<f64> {
-    values.iter().map(|v| v / step).collect()
+/// A staircase's squared errors for a grid of shifts at once: the path
+/// shifted by `angles[j] + velocities[k] · sensitivity[i]` counts at sample
+/// i, against the measured staircase in whole counts. `errors[k · angles.len() + j]` is the sum of
+/// (measured − rounded path)² over the samples: whole numbers, exact in any
+/// order, so it is the same as scoring the shifts one by one.
+///
+/// The angles and velocities are ascending and the sensitivity is not
+/// negative, so a sample's rounded count only grows along a row of the
+/// grid: it is rounded at the grid's corners, and where they differ at each
+/// row's ends, and the row's few steps are found by bisection. A sample
+/// whose count the whole grid leaves alone (most, once the grid is fine)
+/// costs two roundings, where scoring the shifts one by one cost one per
+/// shift. `None` where the path is not finite, or so far from the
+/// measurement that its squares would not be exact.
+fn staircase_errors(
+    measured_counts: &[f64],
+    path_counts: &[f64],
+    sensitivity: &[f64],
+    angles: &[f64],
+    velocities: &[f64],
+) -> Option<Vec<f64>> {
+    // Counts apart beyond which a square loses whole numbers in a sum.
+    const FARTHEST: f64 = 1e6;
+    let (columns, rows) = (angles.len(), velocities.len());
+    if columns == 0 || rows == 0 {
+        return Some(Vec::new());
+    }
+    let mut common = 0.0;
+    // Per row, the change of the error from each column to the next.
+    let mut steps = vec![0.0; rows * columns];
+    for ((&measured, &path), &g) in measured_counts.iter().zip(path_counts).zip(sensitivity) {
+        let count = |j: usize, k: usize| Quantization::nearest_count(path + (angles[j] + velocities[k] * g));
+        let term = |count: f64| (measured - count).powi(2);
+        let (lowest, highest) = (count(0, 0), count(columns - 1, rows - 1));
+        if !((measured - lowest).abs() <= FARTHEST && (measured - highest).abs() <= FARTHEST) {
+            return None;
+        }
+        if lowest == highest {
+            common += term(lowest);
+            continue;
+        }
+        for (k, row) in steps.chunks_exact_mut(columns).enumerate() {
+            let (mut j, mut current) = (0, count(0, k));
+            let last = count(columns - 1, k);
+            row[0] += term(current);
+            while current < last {
+                // The first column past j where the count grows.
+                let (mut below, mut above) = (j, columns - 1);
+                while above - below > 1 {
+                    let middle = (below + above) / 2;
+                    if count(middle, k) > current {
+                        above = middle;
+                    } else {
+                        below = middle;
+                    }
+                }
+                let next = count(above, k);
+                row[above] += term(next) - term(current);
+                (j, current) = (above, next);
+            }
+        }
+    }
+    for row in steps.chunks_exact_mut(columns) {
+        let mut error = common;
+        for cell in row {
+            error += *cell;
+            *cell = error;
+        }
+    }
+    Some(steps)
+}
+
+/// The measured angles in whole counts of `step`, and the path in counts.
+fn in_counts(measured: &[f64], path: &[f64], step: f64) -> (Vec<f64>, Vec<f64>) {
+    (
+        measured.iter().map(|m| Quantization::nearest_count(m / step)).collect(),
+        path.iter().map(|p| p / step).collect(),
+    )
 }
 
 /// With a coarse encoder, least squares on the staircase leaves the initial
 /// angle uncertain by up to half a step; this picks, within half a step, the
-/// shift of the segment that reproduces the measured staircase best.
+/// shift of the segment that reproduces the measured staircase best (the
+/// first of the least, from −half a step up).
 fn best_quantized_offset(step: f64, measured: &[f64], shaft: &[f64]) -> f64 {
     const TRIES: usize = 21;
-    let (measured_counts, shaft_counts) = (in_counts(measured, step), in_counts(shaft, step));
+    let (measured_counts, shaft_counts) = in_counts(measured, shaft, step);
     let offset = |i: usize| i as f64 / (TRIES - 1) as f64 - 0.5;
-    // The path comes from least squares on the staircase, so no shift is
-    // the likely best: tried first, it bounds the others' sums from their
-    // first samples on (a coarse encoder's fit twice as fast).
-    let best = first_of_least(TRIES, TRIES / 2, |i, bound| {
-        staircase_error_below(&measured_counts, &shaft_counts, |_| offset(i), bound)
-    });
-    offset(best) * step
+    let errors = nearest_first(
+        TRIES,
+        |i| i.abs_diff(TRIES / 2),
+        |i, bound| staircase_error_below(&measured_counts, &shaft_counts, |_| offset(i), bound),
+    );
+    let least = errors.iter().copied().fold(f64::INFINITY, f64::min);
+    errors
+        .iter()
+        .position(|&e| e == least)
+        .map_or(0.0, |i| offset(i) * step)
 }
 
-/// The first of `count` candidates (by index) with the least error, whose
-/// errors `error(i, bound)` are given up (infinite) once they reach
-/// `bound`. Tried from the `likely` one, whose error bounds the others from
-/// the start; the answer is that of trying them in order.
-fn first_of_least(count: usize, likely: usize, error: impl Fn(usize, f64) -> f64) -> usize {
-    let mut best = (error(likely, f64::INFINITY), likely);
-    for i in (0..count).filter(|&i| i != likely) {
-        // An earlier candidate wins a tie, so it may reach the best error.
-        let bound = if i < best.1 { best.0.next_up() } else { best.0 };
-        let e = error(i, bound);
-        if e < best.0 || (e == best.0 && i < best.1) {
-            best = (e, i);
-        }
+/// The errors of `count` candidates, scored nearest the likely best first
+/// (by `distance`): the least so far bounds the rest, which are given up
+/// (infinite) once they exceed it. The path comes from least squares on the
+/// staircase, so shifts near none are likely best, and a bound from them
+/// leaves most others after a few samples. Every candidate that ties the
+/// least keeps its exact error.
+fn nearest_first(count: usize, distance: impl Fn(usize) -> usize, error: impl Fn(usize, f64) -> f64) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..count).collect();
+    order.sort_by_key(|&i| distance(i));
+    let mut errors = vec![f64::INFINITY; count];
+    let mut least = f64::INFINITY;
+    for i in order {
+        errors[i] = error(i, least.next_up());
+        least = least.min(errors[i]);
     }
-    best.1
+    errors
 }
 
 /// With a coarse encoder a segment's staircase holds only a few steps, and
@@ -662,6 +742,7 @@ fn first_of_least(count: usize, likely: usize, error: impl Fn(usize, f64) -> f64
 /// shifts the path by the rigid body's sensitivity.
 fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measured: &[f64], path: &mut [f64]) {
     const GRID: i32 = 6;
+    const SIDE: usize = 2 * GRID as usize + 1;
     let n = path.len().min(measured.len());
     // A staircase that steps at least every tenth sample pins the path
     // down already (a fine encoder on a moving load): no search needed.
@@ -671,36 +752,50 @@ fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measur
     }
     let sensitivity: Vec<f64> = velocity_sensitivity(plant, signals.dt).take(n).collect();
     let span_t = sensitivity[n - 1].max(signals.dt);
-    let (path_counts, measured_counts) = (in_counts(&path[..n], step), in_counts(&measured[..n], step));
-    let error = |d_angle: f64, d_velocity: f64, bound: f64| {
-        staircase_error_below(
-            &measured_counts,
-            &path_counts,
-            |i| d_angle + d_velocity * sensitivity[i],
-            bound,
-        )
-    };
-    let mut best = (error(0.0, 0.0, f64::INFINITY), 0.0, 0.0);
+    let (measured_counts, path_counts) = in_counts(&measured[..n], &path[..n], step);
     // In counts: half a step of angle, two steps per segment of velocity.
     let (mut angle_span, mut velocity_span) = (0.5, 2.0 / span_t);
     let (mut centre_angle, mut centre_velocity) = (0.0, 0.0);
-    for _ in 0..3 {
-        for a in -GRID..=GRID {
-            for v in -GRID..=GRID {
-                let d_angle = centre_angle + angle_span * f64::from(a) / f64::from(GRID);
-                let d_velocity = centre_velocity + velocity_span * f64::from(v) / f64::from(GRID);
-                let e = error(d_angle, d_velocity, best.0);
-                if e < best.0 {
-                    best = (e, d_angle, d_velocity);
+    for level in 0..3 {
+        let around = |centre: f64, span: f64| -> [f64; SIDE] {
+            std::array::from_fn(|i| centre + span * f64::from(i as i32 - GRID) / f64::from(GRID))
+        };
+        let (angles, velocities) = (around(centre_angle, angle_span), around(centre_velocity, velocity_span));
+        // The coarse grid spans a whole step of angle, which moves every
+        // sample's count: its shifts are scored one by one, most given up
+        // after a few samples. The finer grids move few samples' counts
+        // and are scored at once.
+        let errors = if level == 0 {
+            let ring = |i: usize| (i % SIDE).abs_diff(SIDE / 2).max((i / SIDE).abs_diff(SIDE / 2));
+            nearest_first(SIDE * SIDE, ring, |cell, bound| {
+                let (a, v) = (cell % SIDE, cell / SIDE);
+                let shift = |i: usize| angles[a] + velocities[v] * sensitivity[i];
+                staircase_error_below(&measured_counts, &path_counts, shift, bound)
+            })
+        } else {
+            match staircase_errors(&measured_counts, &path_counts, &sensitivity, &angles, &velocities) {
+                Some(errors) => errors,
+                None => return,
+            }
+        };
+        // The centre stays unless a shift does better; among the better,
+        // the first by angle, then velocity.
+        let error = |a: usize, v: usize| errors[v * SIDE + a];
+        let centre = GRID as usize;
+        let mut best = (error(centre, centre), centre, centre);
+        for a in 0..SIDE {
+            for v in 0..SIDE {
+                if error(a, v) < best.0 {
+                    best = (error(a, v), a, v);
                 }
             }
         }
-        (centre_angle, centre_velocity) = (best.1, best.2);
+        (centre_angle, centre_velocity) = (angles[best.1], velocities[best.2]);
         angle_span /= f64::from(GRID);
         velocity_span /= f64::from(GRID);
     }
     for (p, g) in path.iter_mut().zip(&sensitivity) {
-        *p += (best.1 + best.2 * g) * step;
+        *p += (centre_angle + centre_velocity * g) * step;
     }
 }
 
@@ -818,5 +913,53 @@ fn simulate_segment(
         }
         stuck = mechanics::settle_friction(plant, effects, &motion, &mut next, t1, stuck, direction);
         motion = next;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_grid_of_staircase_shifts_scores_as_each_shift_alone() {
+        // A slow path over a few steps, a measured staircase off it by a
+        // shift and a slip, and a grid that moves many samples' counts.
+        let n = 500;
+        let sensitivity: Vec<f64> = (0..n).map(|i| 0.002 * i as f64).collect();
+        let path: Vec<f64> = (0..n)
+            .map(|i| 3.0 * (0.01 * i as f64).sin() + 0.013 * i as f64)
+            .collect();
+        let measured: Vec<f64> = path
+            .iter()
+            .enumerate()
+            .map(|(i, p)| Quantization::nearest_count(p + 0.3 + if i % 97 == 0 { 1.0 } else { 0.0 }))
+            .collect();
+        let angles: Vec<f64> = (0..13).map(|j| -0.5 + j as f64 / 12.0).collect();
+        let velocities: Vec<f64> = (0..9).map(|k| -0.4 + 0.1 * k as f64).collect();
+        let errors = staircase_errors(&measured, &path, &sensitivity, &angles, &velocities)
+            .expect("a finite path near the staircase is scored");
+        for (k, v) in velocities.iter().enumerate() {
+            for (j, a) in angles.iter().enumerate() {
+                let alone = staircase_error_below(&measured, &path, |i| a + v * sensitivity[i], f64::INFINITY);
+                assert_eq!(errors[k * angles.len() + j], alone, "angle {a}, velocity {v}");
+            }
+        }
+        // A bound gives up exactly the shifts that reach it.
+        let least = errors.iter().copied().fold(f64::INFINITY, f64::min);
+        let nearest = nearest_first(
+            errors.len(),
+            |_| 0,
+            |cell, bound| {
+                let (a, v) = (angles[cell % angles.len()], velocities[cell / angles.len()]);
+                staircase_error_below(&measured, &path, |i| a + v * sensitivity[i], bound)
+            },
+        );
+        for (e, n) in errors.iter().zip(&nearest) {
+            assert!(if *e == least { n == e } else { n.is_infinite() || n == e });
+        }
+        // A path that diverged scores nothing.
+        let mut diverged = path.clone();
+        diverged[n / 2] = f64::NAN;
+        assert!(staircase_errors(&measured, &diverged, &sensitivity, &angles, &velocities).is_none());
     }
 }
