@@ -499,7 +499,9 @@ pub fn predict_mechanical(
             simulate_segment(&model, signals, segment.clone(), initial, play, shaft);
             keep_if_better(effects, measured, shaft, &mut best, &mut best_error);
         };
-        // Without a mechanical effect the correction is exact: two passes do.
+        // Without a mechanical effect the correction is exact: two passes
+        // do. A coarse encoder reads the shaft and does not move it, and the
+        // correction fits the shaft before its reading: exact as well.
         let passes = if nonlinear_mechanics(effects) { 3 } else { 2 };
         for pass in 0..passes {
             try_start((initial_angle, initial_velocity), None, &mut shaft);
@@ -553,7 +555,6 @@ fn nonlinear_mechanics(effects: &Effects) -> bool {
     effects.coulomb_friction.is_some()
         || effects.gravity_load.is_some()
         || effects.backlash.is_some()
-        || effects.quantization.is_some()
         || effects.load_flexibility.is_some()
 }
 
@@ -594,12 +595,19 @@ fn staircase_error_below(
     const BLOCK: usize = 8;
     let n = measured_counts.len().min(path_counts.len());
     let term = |i: usize, measured: f64, path: f64| (measured - Quantization::nearest_count(path + shift(i))).powi(2);
+    // Blocks spread over the segment first: a shift that misses the
+    // staircase misses it somewhere, and its error reaches the bound
+    // sooner when every part of the segment is sampled early.
+    const SPREAD: usize = 8;
+    let blocks = n / BLOCK;
     let mut sum = 0.0;
-    let blocks = measured_counts[..n]
-        .chunks_exact(BLOCK)
-        .zip(path_counts[..n].chunks_exact(BLOCK));
-    for (b, (measured, path)) in blocks.enumerate() {
-        let t: [f64; BLOCK] = std::array::from_fn(|j| term(b * BLOCK + j, measured[j], path[j]));
+    for b in (0..SPREAD).flat_map(|phase| (phase..blocks).step_by(SPREAD)) {
+        let first = b * BLOCK;
+        let (measured, path) = (
+            &measured_counts[first..first + BLOCK],
+            &path_counts[first..first + BLOCK],
+        );
+        let t: [f64; BLOCK] = std::array::from_fn(|j| term(first + j, measured[j], path[j]));
         sum += ((t[0] + t[1]) + (t[2] + t[3])) + ((t[4] + t[5]) + (t[6] + t[7]));
         if sum >= bound {
             return f64::INFINITY;
