@@ -590,8 +590,7 @@ fn staircase_error_below(
     // The terms are whole numbers, so their sum is exact in any order: a
     // block's terms are computed and added together, and a sum that only
     // grows reaches the bound within a block if and only if at its end.
-    // (Sample by sample, each rounding and check waited for the sum: a
-    // coarse encoder's fit took half as long again.)
+    // (Sample by sample, each rounding and check waited for the sum.)
     const BLOCK: usize = 8;
     let n = measured_counts.len().min(path_counts.len());
     let term = |i: usize, measured: f64, path: f64| (measured - Quantization::nearest_count(path + shift(i))).powi(2);
