@@ -493,11 +493,12 @@ pub fn predict_mechanical(
         let mut best_error = f64::INFINITY;
         best.clear();
         let measured = &signals.theta[segment.clone()];
+        let staircase = effects.quantization.map(|q| Staircase::of(q.step, measured));
         // Simulates the segment from an initial state (and a position in the
         // play) into `shaft`, and keeps it in `best` when it fits better.
         let mut try_start = |initial: (f64, f64), play: Option<f64>, shaft: &mut Vec<f64>| {
             simulate_segment(&model, signals, segment.clone(), initial, play, shaft);
-            keep_if_better(effects, measured, shaft, &mut best, &mut best_error);
+            keep_if_better(effects, staircase.as_ref(), measured, shaft, &mut best, &mut best_error);
         };
         // Without a mechanical effect the correction is exact: two passes
         // do. A coarse encoder reads the shaft and does not move it, and the
@@ -524,8 +525,8 @@ pub fn predict_mechanical(
                 try_start((initial_angle, initial_velocity), Some(play), &mut shaft);
             }
         }
-        if let Some(q) = effects.quantization {
-            refine_on_staircase(plant, signals, q.step, measured, &mut best);
+        if let Some(staircase) = &staircase {
+            refine_on_staircase(plant, signals, staircase, measured, &mut best);
         }
         // A diverged simulation leaves NaN, which the fit refuses.
         best.resize(segment.len(), f64::NAN);
@@ -538,11 +539,15 @@ pub fn predict_mechanical(
 /// Scores a simulated segment against the measurement, at its best shift
 /// within a quantization step, and keeps it (shifted) in `best` when it
 /// beats `best_error`.
-fn keep_if_better(effects: &Effects, measured: &[f64], shaft: &[f64], best: &mut Vec<f64>, best_error: &mut f64) {
-    let offset = match effects.quantization {
-        Some(q) => best_quantized_offset(q.step, measured, shaft),
-        None => 0.0,
-    };
+fn keep_if_better(
+    effects: &Effects,
+    staircase: Option<&Staircase>,
+    measured: &[f64],
+    shaft: &[f64],
+    best: &mut Vec<f64>,
+    best_error: &mut f64,
+) {
+    let offset = staircase.map_or(0.0, |staircase| best_quantized_offset(staircase, shaft));
     let error = segment_error(effects, measured, shaft, offset);
     if error < *best_error {
         *best_error = error;
@@ -693,32 +698,45 @@ fn staircase_errors(
     Some(steps)
 }
 
-/// The measured angles in whole counts of `step`, and the path in counts.
-fn in_counts(measured: &[f64], path: &[f64], step: f64) -> (Vec<f64>, Vec<f64>) {
-    (
-        measured.iter().map(|m| Quantization::nearest_count(m / step)).collect(),
-        path.iter().map(|p| p / step).collect(),
-    )
+/// A segment's measured angles in whole counts of a coarse encoder's
+/// step, once for every search of the segment.
+struct Staircase {
+    step: f64,
+    measured_counts: Vec<f64>,
+}
+
+impl Staircase {
+    fn of(step: f64, measured: &[f64]) -> Self {
+        Self {
+            step,
+            measured_counts: measured.iter().map(|m| Quantization::nearest_count(m / step)).collect(),
+        }
+    }
+
+    /// A path in counts of the step.
+    fn in_counts(&self, path: &[f64]) -> Vec<f64> {
+        path.iter().map(|p| p / self.step).collect()
+    }
 }
 
 /// With a coarse encoder, least squares on the staircase leaves the initial
 /// angle uncertain by up to half a step; this picks, within half a step, the
 /// shift of the segment that reproduces the measured staircase best (the
 /// first of the least, from −half a step up).
-fn best_quantized_offset(step: f64, measured: &[f64], shaft: &[f64]) -> f64 {
+fn best_quantized_offset(staircase: &Staircase, shaft: &[f64]) -> f64 {
     const TRIES: usize = 21;
-    let (measured_counts, shaft_counts) = in_counts(measured, shaft, step);
+    let (measured_counts, shaft_counts) = (&staircase.measured_counts, staircase.in_counts(shaft));
     let offset = |i: usize| i as f64 / (TRIES - 1) as f64 - 0.5;
     let errors = nearest_first(
         TRIES,
         |i| i.abs_diff(TRIES / 2),
-        |i, bound| staircase_error_below(&measured_counts, &shaft_counts, |_| offset(i), bound),
+        |i, bound| staircase_error_below(measured_counts, &shaft_counts, |_| offset(i), bound),
     );
     let least = errors.iter().copied().fold(f64::INFINITY, f64::min);
     errors
         .iter()
         .position(|&e| e == least)
-        .map_or(0.0, |i| offset(i) * step)
+        .map_or(0.0, |i| offset(i) * staircase.step)
 }
 
 /// The errors of `count` candidates, scored nearest the likely best first
@@ -747,7 +765,13 @@ fn nearest_first(count: usize, distance: impl Fn(usize) -> usize, error: impl Fn
 /// coarse grid and then a finer one around its best, for the shift of the
 /// segment that reproduces the measured staircase best; the velocity
 /// shifts the path by the rigid body's sensitivity.
-fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measured: &[f64], path: &mut [f64]) {
+fn refine_on_staircase(
+    plant: &PlantParams,
+    signals: &Signals,
+    staircase: &Staircase,
+    measured: &[f64],
+    path: &mut [f64],
+) {
     const GRID: i32 = 6;
     const SIDE: usize = 2 * GRID as usize + 1;
     let n = path.len().min(measured.len());
@@ -759,7 +783,7 @@ fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measur
     }
     let sensitivity: Vec<f64> = velocity_sensitivity(plant, signals.dt).take(n).collect();
     let span_t = sensitivity[n - 1].max(signals.dt);
-    let (measured_counts, path_counts) = in_counts(&measured[..n], &path[..n], step);
+    let (measured_counts, path_counts) = (&staircase.measured_counts[..n], staircase.in_counts(&path[..n]));
     // In counts: half a step of angle, two steps per segment of velocity.
     let (mut angle_span, mut velocity_span) = (0.5, 2.0 / span_t);
     let (mut centre_angle, mut centre_velocity) = (0.0, 0.0);
@@ -777,10 +801,10 @@ fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measur
             nearest_first(SIDE * SIDE, ring, |cell, bound| {
                 let (a, v) = (cell % SIDE, cell / SIDE);
                 let shift = |i: usize| angles[a] + velocities[v] * sensitivity[i];
-                staircase_error_below(&measured_counts, &path_counts, shift, bound)
+                staircase_error_below(measured_counts, &path_counts, shift, bound)
             })
         } else {
-            match staircase_errors(&measured_counts, &path_counts, &sensitivity, &angles, &velocities) {
+            match staircase_errors(measured_counts, &path_counts, &sensitivity, &angles, &velocities) {
                 Some(errors) => errors,
                 None => return,
             }
@@ -802,7 +826,7 @@ fn refine_on_staircase(plant: &PlantParams, signals: &Signals, step: f64, measur
         velocity_span /= f64::from(GRID);
     }
     for (p, g) in path.iter_mut().zip(&sensitivity) {
-        *p += (centre_angle + centre_velocity * g) * step;
+        *p += (centre_angle + centre_velocity * g) * staircase.step;
     }
 }
 
