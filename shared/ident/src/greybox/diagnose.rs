@@ -328,8 +328,20 @@ pub fn diagnose_with(
     let mut candidates = Vec::new();
     let mut fitted = BTreeMap::new();
     let mut plausible_effects = BTreeSet::new();
-    for (_, result) in judged {
-        let (candidate, refit, plausible) = result?;
+    for (i, result) in judged {
+        // A candidate that no start lets simulate is not judged, and says
+        // so: one diverging fit on a real record must not cost the others.
+        let (candidate, refit, plausible) = match result {
+            Ok(judged) => judged,
+            Err(ModelError::Fit(reason)) => {
+                not_judged.push(NotJudged {
+                    effect: kinds[i].0.name().to_owned(),
+                    reason: format!("its fit failed: {reason}"),
+                });
+                continue;
+            }
+            Err(other) => return Err(other),
+        };
         if plausible {
             plausible_effects.insert(candidate.effect.clone());
         }

@@ -119,10 +119,13 @@ fn baseline_knobs(part: Part, signals: &Signals) -> Vec<Free> {
         // From the command to the angle alone, the flow gain sets the
         // speed, inertia against the (data sheet's) oil stiffness the
         // hydraulic mode, and viscous friction with the valve's bandwidth
-        // its damping; the pressures' own coefficients are not observable.
+        // and damping its damping; the pressures' own coefficients are not
+        // observable. Without the valve's damping, a foreign valve's phase
+        // went to a false delay (clean plant 1000011: 5.5 ms, t 6.1).
         Part::Whole => vec![
             log(Knob::FlowGain, 1e-7, 1e-2),
             log(Knob::ValveNaturalFrequency, 2.0, 2000.0),
+            log(Knob::ValveDamping, 0.02, 5.0),
             log(Knob::Inertia, 1e-3, 1e5),
             log(Knob::ViscousFriction, 1e-3, 1e5),
         ],
@@ -863,14 +866,19 @@ pub(crate) fn fit_effect(
             Some((part_cost(part, &screened, signals, screening.clone(), loss), screened))
         })
         .collect();
-    let mut best: Option<(f64, Working)> = None;
-    for (cost, screened) in screened.into_iter().flatten() {
-        if best.as_ref().is_none_or(|(c, _)| cost < *c) {
-            best = Some((cost, screened));
-        }
-    }
-    let (_, seeded) = best.ok_or_else(|| ModelError::Fit(format!("no valid start for `{kind}`")))?;
-    let fitted = fit_part(part, &seeded, &knobs, signals, estimation, options, loss)?;
+    // The lowest first, the first of equals as in order; a start that
+    // simulates its screening third may still diverge on the whole segment
+    // (a lightly damped valve on a foreign plant did), and yields to the next.
+    let mut ranked: Vec<(usize, f64, Working)> = screened
+        .into_iter()
+        .enumerate()
+        .filter_map(|(i, s)| s.map(|(cost, w)| (i, cost, w)))
+        .collect();
+    ranked.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    let fitted = ranked
+        .iter()
+        .find_map(|(_, _, seeded)| fit_part(part, seeded, &knobs, signals, estimation.clone(), options, loss).ok())
+        .ok_or_else(|| ModelError::Fit(format!("no start for `{kind}` simulates the {} part", part.name())))?;
     let mut out = Model {
         plant: fitted.working.plant,
         effects: fitted.working.effects.clone(),
