@@ -405,6 +405,10 @@ pub fn predict_hydraulic(
     out: &mut Prediction,
 ) {
     let h = signals.dt;
+    let exact = HydraulicSteps::new(plant, effects, h);
+    let travel_limit = effects.saturation.map(|s| s.limit);
+    let inside = |p: f64| p > plant.tank_pressure && p < plant.supply_pressure;
+    let free = |spool: f64| travel_limit.is_none_or(|limit| spool.abs() < limit);
     let mut spool = [0.0_f64; 2];
     let mut pressures = [signals.p_a[0], signals.p_b[0]];
     let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
@@ -421,11 +425,34 @@ pub fn predict_hydraulic(
         if k + 1 >= range.end {
             break;
         }
-        // RK4 over one sample, the command held and the velocity linear.
         let input = delayed_command(signals, effects, k);
         let (v0, v1) = (signals.velocity[k], signals.velocity[k + 1]);
         // Before the range only the spool matters.
         let in_segment = k + 1 >= range.start;
+        let x = [spool[0], spool[1], pressures[0], pressures[1]];
+        // Exactly where the valve and chambers are linear: the spool clear
+        // of its stops and the pressures clear of tank and supply, at the
+        // step's start and end.
+        if let Some(steps) = exact.as_ref().filter(|_| free(x[0])) {
+            if !in_segment {
+                let next = steps.spool(&x, input);
+                if free(next[0]) {
+                    spool = next;
+                    continue;
+                }
+            } else if inside(x[2]) && inside(x[3]) {
+                let piece = steps.piece(x[0]);
+                if let Some(step) = &steps.pieces[piece] {
+                    let next = step.apply(&x, input, v0, v1);
+                    if free(next[0]) && inside(next[2]) && inside(next[3]) && steps.piece(next[0]) == piece {
+                        spool = [next[0], next[1]];
+                        pressures = [next[2], next[3]];
+                        continue;
+                    }
+                }
+            }
+        }
+        // RK4 over one sample, the command held and the velocity linear.
         let rates = |x: &[f64; 4], velocity: f64| -> [f64; 4] {
             let (ds, dr) = hydraulics::spool_rates(plant, effects, x[0], x[1], input);
             let (da, db) = if in_segment {
@@ -435,7 +462,6 @@ pub fn predict_hydraulic(
             };
             [ds, dr, da, db]
         };
-        let x = [spool[0], spool[1], pressures[0], pressures[1]];
         let vm = 0.5 * (v0 + v1);
         let k1 = rates(&x, v0);
         let k2 = rates(&add(&x, &k1, 0.5 * h), vm);
@@ -452,6 +478,150 @@ pub fn predict_hydraulic(
             hydraulics::bound_pressure(plant, next[2]),
             hydraulics::bound_pressure(plant, next[3]),
         ];
+    }
+}
+
+/// The valve and chambers over one sample where they are linear by
+/// pieces, exactly: the spool driven by the held command, the pressures by
+/// the spool and by a velocity that moves linearly over the sample (as the
+/// RK4 step takes it). Without orifice flow the rates are affine in the
+/// state, the command and the velocity on each side of the valve's dead
+/// band and inside it (an asymmetric gain's pieces are the opening's
+/// signs); a step that stays on one piece is the exponential of a
+/// generator whose columns are differences of [`hydraulics::spool_rates`]
+/// and [`hydraulics::pressure_rates`], so the physics stays defined in one
+/// place. A spool at its stop, a pressure at tank or supply or a step that
+/// changes piece is not linear: the caller steps those by RK4.
+struct HydraulicSteps {
+    /// Below the dead band, inside it (or everywhere, without one), above.
+    pieces: [Option<LinearHydraulicStep>; 3],
+    band: Option<hydractl_plant::effects::Deadzone>,
+}
+
+impl HydraulicSteps {
+    /// `None` where the valve and chambers are not linear by pieces.
+    fn new(plant: &PlantParams, effects: &Effects, h: f64) -> Option<Self> {
+        if effects.orifice_flow.is_some() {
+            return None;
+        }
+        // Clear of its stops the spool moves as if it had none.
+        let mut free = *effects;
+        free.saturation = None;
+        let piecewise = effects.deadzone.is_some() || effects.asymmetric_gain.is_some();
+        let band = piecewise.then(|| {
+            effects.deadzone.unwrap_or(hydractl_plant::effects::Deadzone {
+                width: 0.0,
+                offset: 0.0,
+            })
+        });
+        let about = |spool: f64, delta: f64| LinearHydraulicStep::about(plant, &free, spool, delta, h);
+        let pieces = match band {
+            Some(band) => [
+                about(band.offset - band.width - 1.0, -1.0),
+                (band.width > 0.0)
+                    .then(|| about(band.offset, 0.5 * band.width))
+                    .flatten(),
+                about(band.offset + band.width + 1.0, 1.0),
+            ],
+            None => [None, Some(about(0.0, 1.0)?), None],
+        };
+        pieces.iter().any(Option::is_some).then_some(Self { pieces, band })
+    }
+
+    /// The piece the spool is on: 0 below the dead band, 1 inside (or
+    /// everywhere, without one), 2 above.
+    #[inline]
+    fn piece(&self, spool: f64) -> usize {
+        match self.band.map(|band| band.side(spool)) {
+            Some(std::cmp::Ordering::Less) => 0,
+            None | Some(std::cmp::Ordering::Equal) => 1,
+            Some(std::cmp::Ordering::Greater) => 2,
+        }
+    }
+
+    /// The spool alone one sample on (the pressures not yet simulated):
+    /// the same on every piece, since the flows do not act on it.
+    #[inline]
+    fn spool(&self, x: &[f64; 4], input: f64) -> [f64; 2] {
+        let step = self.pieces.iter().flatten().next();
+        step.map_or([x[0], x[1]], |step| step.spool(x, input))
+    }
+}
+
+struct LinearHydraulicStep {
+    transition: nalgebra::Matrix4<f64>,
+    from_input: nalgebra::Vector4<f64>,
+    from_velocity: nalgebra::Vector4<f64>,
+    /// Per unit of the velocity's change over the sample.
+    from_velocity_change: nalgebra::Vector4<f64>,
+    constant: nalgebra::Vector4<f64>,
+}
+
+impl LinearHydraulicStep {
+    /// The step of the rates about a spool at `spool`, which must lie on
+    /// the piece, moving it by `spool_delta` within the piece; the
+    /// pressures about mid-way between tank and supply, where no rate is
+    /// held.
+    fn about(plant: &PlantParams, effects: &Effects, spool: f64, spool_delta: f64, h: f64) -> Option<Self> {
+        let neutral = 0.5 * (plant.tank_pressure + plant.supply_pressure);
+        let room = 0.5 * (plant.supply_pressure - plant.tank_pressure);
+        if !room.is_finite() || room <= 0.0 || !spool_delta.is_finite() || spool_delta == 0.0 {
+            return None;
+        }
+        // z = [spool, spool rate, p_a, p_b, velocity, its slope, command, 1].
+        let rates = |z: &[f64; 8]| -> nalgebra::SVector<f64, 8> {
+            let (ds, dr) = hydraulics::spool_rates(plant, effects, z[0], z[1], z[6]);
+            let (da, db) = hydraulics::pressure_rates(plant, effects, z[0], z[2], z[3], z[4]);
+            nalgebra::SVector::<f64, 8>::from([ds, dr, da, db, z[5], 0.0, 0.0, 0.0])
+        };
+        let reference = [spool, 0.0, neutral, neutral, 0.0, 0.0, 0.0, 1.0];
+        let at_reference = rates(&reference);
+        let mut generator = nalgebra::SMatrix::<f64, 8, 8>::zeros();
+        for i in 0..7 {
+            let delta = match i {
+                0 => spool_delta,
+                2 | 3 => 0.1 * room,
+                _ => 1.0,
+            };
+            let mut moved = reference;
+            moved[i] += delta;
+            generator.set_column(i, &((rates(&moved) - at_reference) / delta));
+        }
+        let linear = generator;
+        generator.set_column(
+            7,
+            &(at_reference - linear * nalgebra::SVector::<f64, 8>::from(reference)),
+        );
+        let exact = (generator * h).exp();
+        let step = Self {
+            transition: exact.fixed_view::<4, 4>(0, 0).into_owned(),
+            from_velocity: exact.fixed_view::<4, 1>(0, 4).into_owned(),
+            from_velocity_change: exact.fixed_view::<4, 1>(0, 5).into_owned() / h,
+            from_input: exact.fixed_view::<4, 1>(0, 6).into_owned(),
+            constant: exact.fixed_view::<4, 1>(0, 7).into_owned(),
+        };
+        (step.transition.iter().all(|v| v.is_finite()) && step.constant.iter().all(|v| v.is_finite())).then_some(step)
+    }
+
+    /// The state one sample on, from `v0` to `v1` linearly.
+    #[inline]
+    fn apply(&self, x: &[f64; 4], input: f64, v0: f64, v1: f64) -> [f64; 4] {
+        (self.transition * nalgebra::Vector4::from(*x)
+            + self.from_input * input
+            + self.from_velocity * v0
+            + self.from_velocity_change * (v1 - v0)
+            + self.constant)
+            .into()
+    }
+
+    /// The spool alone one sample on (the pressures not yet simulated).
+    #[inline]
+    fn spool(&self, x: &[f64; 4], input: f64) -> [f64; 2] {
+        let t = &self.transition;
+        [
+            t[(0, 0)] * x[0] + t[(0, 1)] * x[1] + self.from_input[0] * input + self.constant[0],
+            t[(1, 0)] * x[0] + t[(1, 1)] * x[1] + self.from_input[1] * input + self.constant[1],
+        ]
     }
 }
 
@@ -950,6 +1120,68 @@ fn simulate_segment(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_hydraulic_exact_step_is_a_fine_integration_on_each_piece_of_the_valve() {
+        use hydractl_plant::effects::{AsymmetricGain, Deadzone};
+        let plant = PlantParams::default();
+        let mut effects = Effects::none();
+        effects.deadzone = Some(Deadzone {
+            width: 0.05,
+            offset: 0.01,
+        });
+        effects.asymmetric_gain = Some(AsymmetricGain { ratio: 0.7 });
+        let h = 1e-3;
+        let steps = HydraulicSteps::new(&plant, &effects, h).expect("linear by pieces");
+        // RK4 on a hundred substeps, the velocity linear over the sample.
+        let fine = |x: [f64; 4], input: f64, v0: f64, v1: f64| -> [f64; 4] {
+            let n = 100;
+            let dt = h / n as f64;
+            let rates = |x: &[f64; 4], t: f64| -> [f64; 4] {
+                let velocity = v0 + (v1 - v0) * t / h;
+                let (ds, dr) = hydraulics::spool_rates(&plant, &effects, x[0], x[1], input);
+                let (da, db) = hydraulics::pressure_rates(&plant, &effects, x[0], x[2], x[3], velocity);
+                [ds, dr, da, db]
+            };
+            let mut x = x;
+            for i in 0..n {
+                let t = i as f64 * dt;
+                let k1 = rates(&x, t);
+                let k2 = rates(&add(&x, &k1, 0.5 * dt), t + 0.5 * dt);
+                let k3 = rates(&add(&x, &k2, 0.5 * dt), t + 0.5 * dt);
+                let k4 = rates(&add(&x, &k3, dt), t + dt);
+                for j in 0..4 {
+                    x[j] += dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+                }
+            }
+            x
+        };
+        // Below the band, inside it and above it, each step staying there.
+        for (spool, input) in [(-0.3, -0.35), (0.02, 0.03), (0.4, 0.5)] {
+            let x = [spool, 0.01, 90e5, 70e5];
+            let piece = steps.piece(spool);
+            let exact = steps.pieces[piece]
+                .as_ref()
+                .expect("a piece")
+                .apply(&x, input, 0.1, -0.05);
+            let reference = fine(x, input, 0.1, -0.05);
+            assert_eq!(steps.piece(exact[0]), piece);
+            for j in 0..4 {
+                let scale = x[j].abs().max(1e-3);
+                assert!(
+                    (exact[j] - reference[j]).abs() <= 1e-9 * scale,
+                    "piece {piece}, state {j}: {} against {}",
+                    exact[j],
+                    reference[j]
+                );
+            }
+            let spool_alone = steps.spool(&x, input);
+            assert!((spool_alone[0] - exact[0]).abs() < 1e-12 && (spool_alone[1] - exact[1]).abs() < 1e-12);
+        }
+        // The √Δp valve law is not linear by pieces.
+        effects.orifice_flow = Some(hydractl_plant::effects::OrificeFlow);
+        assert!(HydraulicSteps::new(&plant, &effects, h).is_none());
+    }
 
     #[test]
     fn a_grid_of_staircase_shifts_scores_as_each_shift_alone() {
