@@ -105,12 +105,29 @@ pub fn minimize(
         let jt = jacobian.transpose();
         let jtj = &jt * &jacobian;
         normal_matrix.copy_from(&jtj);
-        let gradient = &jt * &r;
+        let mut gradient = &jt * &r;
+        // A parameter at a bound that the descent would push past it is
+        // held there for this step: a step that moves it, clamped, is not
+        // the step the others were solved for, and the trials that follow
+        // cost a simulation each while the damping grows.
+        let held: Vec<bool> = (0..p)
+            .map(|i| (theta[i] <= lower[i] && gradient[i] > 0.0) || (theta[i] >= upper[i] && gradient[i] < 0.0))
+            .collect();
+        for i in (0..p).filter(|i| held[*i]) {
+            gradient[i] = 0.0;
+        }
         let mut improved = false;
         for _ in 0..10 {
             let mut damped = jtj.clone();
             for i in 0..p {
                 damped[(i, i)] += lambda * jtj[(i, i)].max(1e-9);
+            }
+            for i in (0..p).filter(|i| held[*i]) {
+                for j in 0..p {
+                    damped[(i, j)] = 0.0;
+                    damped[(j, i)] = 0.0;
+                }
+                damped[(i, i)] = 1.0;
             }
             let Some(step) = damped.lu().solve(&gradient) else {
                 lambda *= 10.0;
