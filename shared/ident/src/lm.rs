@@ -174,6 +174,24 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_parameter_pushed_against_its_bound_lets_the_others_converge() {
+        // y = a x + b x², where the data want b < 0 and b is held at 0:
+        // the fit must still find a's best value for b = 0, in a few steps.
+        let x: Vec<f64> = (1..=40).map(|i| i as f64 * 0.05).collect();
+        let y: Vec<f64> = x.iter().map(|x| 2.0 * x - 0.5 * x * x).collect();
+        let residuals = |p: &[f64]| Some(x.iter().zip(&y).map(|(x, y)| p[0] * x + p[1] * x * x - y).collect());
+        let fit = minimize(&[1.0, 0.0], &[0.0, 0.0], &[10.0, 10.0], residuals, LmOptions::default()).expect("defined");
+        let best_a = x.iter().zip(&y).map(|(x, y)| x * y).sum::<f64>() / x.iter().map(|x| x * x).sum::<f64>();
+        assert_eq!(fit.params[1], 0.0);
+        assert!(
+            (fit.params[0] - best_a).abs() < 1e-6,
+            "{:?} against {best_a}",
+            fit.params
+        );
+        assert!(fit.converged && fit.iterations <= 5, "{} iterations", fit.iterations);
+    }
+
+    #[test]
     fn fits_an_exponential_within_bounds() {
         let t: Vec<f64> = (0..50).map(|i| i as f64 * 0.1).collect();
         let y: Vec<f64> = t.iter().map(|t| 3.0 * (-0.7 * t).exp()).collect();

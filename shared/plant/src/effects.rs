@@ -50,6 +50,17 @@ impl Deadzone {
 }
 
 /// Spool travel limit.
+/// The piece of [`Effects::valve_band`] the spool is on: 0 below the
+/// band, 1 inside it (or everywhere, without a band), 2 above.
+#[inline]
+pub fn valve_piece(band: Option<Deadzone>, spool: f64) -> usize {
+    match band.map(|band| band.side(spool)) {
+        Some(std::cmp::Ordering::Less) => 0,
+        None | Some(std::cmp::Ordering::Equal) => 1,
+        Some(std::cmp::Ordering::Greater) => 2,
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Saturation {
     /// Largest spool travel, command units.
@@ -611,6 +622,19 @@ pub struct Effects {
 impl Effects {
     pub fn none() -> Self {
         Self::default()
+    }
+
+    /// Where the valve's flow is affine by pieces of the spool: its dead
+    /// band, of width 0 for an asymmetric gain alone (whose pieces are the
+    /// spool's signs); `None` where one affine map holds for every spool.
+    pub fn valve_band(&self) -> Option<Deadzone> {
+        let piecewise = self.deadzone.is_some() || self.asymmetric_gain.is_some();
+        piecewise.then(|| {
+            self.deadzone.unwrap_or(Deadzone {
+                width: 0.0,
+                offset: 0.0,
+            })
+        })
     }
 
     /// Switches an effect on, replacing one of the same kind.

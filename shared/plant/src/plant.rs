@@ -192,13 +192,7 @@ impl ExactStep {
         // Clear of its limit the spool moves as if it had none.
         let mut free = plant.clone();
         free.effects.saturation = None;
-        let piecewise = e.deadzone.is_some() || e.asymmetric_gain.is_some();
-        let band = piecewise.then(|| {
-            e.deadzone.unwrap_or(Deadzone {
-                width: 0.0,
-                offset: 0.0,
-            })
-        });
+        let band = e.valve_band();
         let at = |spool: f64| {
             let mut reference = [0.0; STATES];
             reference[SPOOL] = spool;
@@ -230,11 +224,7 @@ impl ExactStep {
     /// everywhere, without pieces), 2 above.
     #[inline]
     fn piece(&self, spool: f64) -> usize {
-        match self.band.map(|band| band.side(spool)) {
-            Some(std::cmp::Ordering::Less) => 0,
-            None | Some(std::cmp::Ordering::Equal) => 1,
-            Some(std::cmp::Ordering::Greater) => 2,
-        }
+        crate::effects::valve_piece(self.band, spool)
     }
 
     /// The state one step on, or `None` where the step starts or ends with

@@ -507,13 +507,7 @@ impl HydraulicSteps {
         // Clear of its stops the spool moves as if it had none.
         let mut free = *effects;
         free.saturation = None;
-        let piecewise = effects.deadzone.is_some() || effects.asymmetric_gain.is_some();
-        let band = piecewise.then(|| {
-            effects.deadzone.unwrap_or(hydractl_plant::effects::Deadzone {
-                width: 0.0,
-                offset: 0.0,
-            })
-        });
+        let band = effects.valve_band();
         let about = |spool: f64, delta: f64| LinearHydraulicStep::about(plant, &free, spool, delta, h);
         let pieces = match band {
             Some(band) => [
@@ -532,11 +526,7 @@ impl HydraulicSteps {
     /// everywhere, without one), 2 above.
     #[inline]
     fn piece(&self, spool: f64) -> usize {
-        match self.band.map(|band| band.side(spool)) {
-            Some(std::cmp::Ordering::Less) => 0,
-            None | Some(std::cmp::Ordering::Equal) => 1,
-            Some(std::cmp::Ordering::Greater) => 2,
-        }
+        hydractl_plant::effects::valve_piece(self.band, spool)
     }
 
     /// The spool alone one sample on (the pressures not yet simulated):
