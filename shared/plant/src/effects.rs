@@ -61,6 +61,23 @@ pub fn valve_piece(band: Option<Deadzone>, spool: f64) -> usize {
     }
 }
 
+/// Where to take an affine map's differences on each piece of `band`: a
+/// spool on the piece and a move that stays on it, below, inside (none
+/// for a band of no width) and above; without a band, one piece about 0.
+pub fn valve_piece_probes(band: Option<Deadzone>) -> [Option<(f64, f64)>; 3] {
+    match band {
+        Some(Deadzone {
+            width: half_width,
+            offset: centre,
+        }) => [
+            Some((centre - half_width - 1.0, -1.0)),
+            (half_width > 0.0).then_some((centre, 0.5 * half_width)),
+            Some((centre + half_width + 1.0, 1.0)),
+        ],
+        None => [None, Some((0.0, 1.0)), None],
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Saturation {
     /// Largest spool travel, command units.

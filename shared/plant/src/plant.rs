@@ -198,21 +198,12 @@ impl ExactStep {
             reference[SPOOL] = spool;
             reference
         };
-        let pieces = if let Some(Deadzone {
-            width: half_width,
-            offset: centre,
-        }) = band
-        {
-            [
-                AffineStep::about(&free, at(centre - half_width - 1.0), -1.0),
-                (half_width > 0.0)
-                    .then(|| AffineStep::about(&free, at(centre), 0.5 * half_width))
-                    .flatten(),
-                AffineStep::about(&free, at(centre + half_width + 1.0), 1.0),
-            ]
-        } else {
-            [None, Some(AffineStep::about(&free, at(0.0), 1.0)?), None]
-        };
+        let pieces = crate::effects::valve_piece_probes(band)
+            .map(|probe| probe.and_then(|(spool, delta)| AffineStep::about(&free, at(spool), delta)));
+        // Without a band the one piece is the whole map: it must exist.
+        if band.is_none() && pieces[1].is_none() {
+            return None;
+        }
         Some(Self {
             pieces,
             band,

@@ -869,15 +869,11 @@ pub(crate) fn fit_effect(
     // The lowest first, the first of equals as in order; a start that
     // simulates its screening third may still diverge on the whole segment
     // (a lightly damped valve on a foreign plant did), and yields to the next.
-    let mut ranked: Vec<(usize, f64, Working)> = screened
-        .into_iter()
-        .enumerate()
-        .filter_map(|(i, s)| s.map(|(cost, w)| (i, cost, w)))
-        .collect();
-    ranked.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    let mut ranked: Vec<(f64, Working)> = screened.into_iter().flatten().collect();
+    ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
     let fitted = ranked
         .iter()
-        .find_map(|(_, _, seeded)| fit_part(part, seeded, &knobs, signals, estimation.clone(), options, loss).ok())
+        .find_map(|(_, seeded)| fit_part(part, seeded, &knobs, signals, estimation.clone(), options, loss).ok())
         .ok_or_else(|| ModelError::Fit(format!("no start for `{kind}` simulates the {} part", part.name())))?;
     let mut out = Model {
         plant: fitted.working.plant,

@@ -508,17 +508,8 @@ impl HydraulicSteps {
         let mut free = *effects;
         free.saturation = None;
         let band = effects.valve_band();
-        let about = |spool: f64, delta: f64| LinearHydraulicStep::about(plant, &free, spool, delta, h);
-        let pieces = match band {
-            Some(band) => [
-                about(band.offset - band.width - 1.0, -1.0),
-                (band.width > 0.0)
-                    .then(|| about(band.offset, 0.5 * band.width))
-                    .flatten(),
-                about(band.offset + band.width + 1.0, 1.0),
-            ],
-            None => [None, Some(about(0.0, 1.0)?), None],
-        };
+        let pieces = hydractl_plant::effects::valve_piece_probes(band)
+            .map(|probe| probe.and_then(|(spool, delta)| LinearHydraulicStep::about(plant, &free, spool, delta, h)));
         pieces.iter().any(Option::is_some).then_some(Self { pieces, band })
     }
 
