@@ -3,14 +3,14 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use hydractl_system_tests::{scratch_dir, ScratchDir};
+
 fn hydractl() -> Command {
     Command::new(env!("CARGO_BIN_EXE_hydractl"))
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("hydractl-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
+fn scratch(name: &str) -> ScratchDir {
+    scratch_dir(&format!("cli-{name}"))
 }
 
 #[test]
@@ -45,7 +45,6 @@ fn sim_writes_the_csv_and_the_summary() {
     }
     assert_eq!(summary["sim_seconds"], 2.0);
     assert_eq!(summary["effects"].as_array().map(Vec::len), Some(2));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -97,7 +96,6 @@ fn a_bad_config_names_the_file_and_the_key() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.toml") && err.contains("bulk_modulos"), "{err}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -185,7 +183,6 @@ fn ident_tf_recovers_the_plants_linearization_from_closed_loop_data() {
         err.contains("bad.csv") && err.contains("missing column `torque`"),
         "{err}"
     );
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// 12 s of closed-loop data with a hidden dead-zone, as `hydractl sim` writes it.
@@ -315,7 +312,6 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
         html.contains("validation NRMSE per step"),
         "the error falling, step by step"
     );
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -361,7 +357,6 @@ fn model_input_defects_name_the_file_line_and_column() {
         !out.status.success() && err.contains("broken.toml") && err.contains("inertia"),
         "{err}"
     );
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// `config/sim.toml` with position-only P control at gain `kp`.
@@ -490,7 +485,6 @@ fn ident_mech_friction_map_spectrum_and_pid_iae_on_the_simulated_rotator() {
         .expect("runs");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("one gain per run"));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -532,7 +526,6 @@ fn run_checks_where_its_results_go_before_it_starts() {
         assert!(err.contains(flag) && err.contains("does not exist"), "{err}");
         assert!(!err.contains("cycles"), "refused before the run: {err}");
     }
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -583,7 +576,6 @@ fn can_budget_says_whether_a_period_fits_the_bus() {
         .expect("runs");
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("does not fit"));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -706,7 +698,6 @@ fn compensating_a_fitted_deadzone_lowers_the_tracking_error_on_the_machine() {
     let base = tracking_rms(&dir, None, None, None);
     let same = tracking_rms(&dir, Some(&untouched), None, None);
     assert!(same <= 1.02 * base, "tracking RMS {base} → {same} with no effect");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// A constant load of 150 N·m on the machine (a hose's drag), measured
@@ -752,7 +743,6 @@ fn compensating_a_fitted_load_torque_lowers_the_tracking_error_on_the_machine() 
     assert_eq!(change["effect"], "load_torque");
     let after = tracking_rms(&dir, Some(&tuned), None, None);
     assert!(after <= 0.3 * before, "tracking RMS {before} → {after}: not 70 % lower");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The catalog's Coulomb friction (60 N·m sliding, 90 breakaway): the fitted
@@ -766,7 +756,6 @@ fn compensating_a_fitted_coulomb_friction_lowers_the_tracking_error_on_the_machi
         "{keys:?}"
     );
     assert!(after <= 0.7 * before, "tracking RMS {before} → {after}: not 30 % lower");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The catalog's 20 ms delay of the valve command: the torque loop's
@@ -780,7 +769,6 @@ fn compensating_a_fitted_time_delay_lowers_the_tracking_error_on_the_machine() {
         after <= 0.85 * before,
         "tracking RMS {before} → {after}: not 15 % lower"
     );
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The catalog's gravity load (150 N·m at the worst angle): held ahead of
@@ -795,7 +783,6 @@ fn compensating_a_fitted_gravity_load_lowers_the_tracking_error_on_the_machine()
         "{keys:?}"
     );
     assert!(after <= 0.7 * before, "tracking RMS {before} → {after}: not 30 % lower");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The catalog's asymmetric gain (negative commands at 0.7): the shaper's
@@ -819,5 +806,4 @@ fn compensating_a_fitted_asymmetric_gain_tracks_as_the_plant_without_it() {
         after <= 0.75 * before,
         "tracking RMS {before} → {after}: not 25 % lower"
     );
-    std::fs::remove_dir_all(dir).ok();
 }

@@ -6,6 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use hydractl_system_tests::{scratch_dir, ScratchDir};
+
 fn hydractl() -> Command {
     Command::new(env!("CARGO_BIN_EXE_hydractl"))
 }
@@ -15,9 +17,8 @@ fn vehicle_config() -> PathBuf {
 }
 
 /// Writes `files` (path under the root, contents) into a new root.
-fn machine(name: &str, files: &[(&str, &str)]) -> PathBuf {
-    let root = std::env::temp_dir().join(format!("hydractl-doctor-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+fn machine(name: &str, files: &[(&str, &str)]) -> ScratchDir {
+    let root = scratch_dir(&format!("doctor-{name}"));
     for (path, text) in files {
         let path = root.join(path);
         std::fs::create_dir_all(path.parent().expect("parent")).expect("folder");
@@ -122,7 +123,6 @@ fn a_vehicle_computer_set_up_for_the_loop_is_ready() {
     }
     assert_eq!(report["ready"], true, "{report}");
     assert_eq!(code, Some(0));
-    let _ = std::fs::remove_dir_all(root);
 }
 
 #[test]
@@ -179,7 +179,6 @@ fn a_stock_desktop_kernel_is_not_ready_and_is_told_what_to_change() {
     }
     assert_eq!(report["ready"], false);
     assert_eq!(code, Some(1));
-    let _ = std::fs::remove_dir_all(root);
 }
 
 #[test]
@@ -201,5 +200,4 @@ fn a_missing_can_interface_fails_naming_it() {
     assert_eq!(status_of(&report, "preempt_rt"), "pass");
     assert_eq!(report["ready"], false);
     assert_eq!(code, Some(1));
-    let _ = std::fs::remove_dir_all(root);
 }
