@@ -145,12 +145,25 @@ fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor
         let root = SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT + 40)).into_drawing_area();
         let draw = |e: String| anyhow!("drawing `{title}`: {e}");
         root.fill(&WHITE).map_err(|e| draw(e.to_string()))?;
-        let top = outputs
+        // Each output as a share of its first step's (the baseline's), so
+        // that an angle's NRMSE of 0.002 shows beside pressures' of 0.2.
+        let shares: Vec<Vec<f64>> = outputs
             .iter()
-            .flat_map(|(_, v, _)| v.iter().copied())
+            .map(|(_, values, _)| {
+                let first = values
+                    .iter()
+                    .copied()
+                    .find(|v| v.is_finite() && *v > 0.0)
+                    .unwrap_or(f64::NAN);
+                values.iter().map(|v| 100.0 * v / first).collect()
+            })
+            .collect();
+        let top = shares
+            .iter()
+            .flatten()
+            .copied()
             .filter(|v| v.is_finite())
-            .fold(0.0_f64, f64::max)
-            .max(1e-9)
+            .fold(100.0_f64, f64::max)
             * 1.15;
         let n = steps.len();
         let mut c = ChartBuilder::on(&root)
@@ -172,15 +185,15 @@ fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor
             .disable_x_mesh()
             .x_labels(n.max(2) * 2 + 1)
             .x_label_formatter(&label)
-            .y_desc("validation NRMSE")
+            .y_desc("% of the baseline's validation NRMSE")
             .light_line_style(WHITE.mix(0.0))
             .draw()
             .map_err(|e| draw(e.to_string()))?;
         let width = 0.7 / outputs.len().max(1) as f64;
-        for (j, (name, values, color)) in outputs.iter().enumerate() {
+        for (j, ((name, values, color), shares)) in outputs.iter().zip(&shares).enumerate() {
             let color = *color;
             let offset = -0.35 + width * j as f64;
-            c.draw_series(values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, v)| {
+            c.draw_series(shares.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, v)| {
                 let x = i as f64 + offset;
                 Rectangle::new([(x, 0.0), (x + width * 0.9, *v)], color.filled())
             }))
@@ -193,10 +206,17 @@ fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor
                     plotters::style::text_anchor::HPos::Center,
                     plotters::style::text_anchor::VPos::Bottom,
                 ));
-            c.draw_series(values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, v)| {
-                let x = i as f64 + offset + width * 0.45;
-                Text::new(format!("{v:.4}"), (x, *v + 0.01 * top), value_style.clone())
-            }))
+            c.draw_series(
+                values
+                    .iter()
+                    .zip(shares)
+                    .enumerate()
+                    .filter(|(_, (_, share))| share.is_finite())
+                    .map(|(i, (v, share))| {
+                        let x = i as f64 + offset + width * 0.45;
+                        Text::new(format!("{v:.4}"), (x, *share + 0.01 * top), value_style.clone())
+                    }),
+            )
             .map_err(|e| draw(e.to_string()))?;
         }
         finish(&mut c, &root).map_err(draw)?;
@@ -388,6 +408,9 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
             ),
         )?;
     }
+    // The model's history comes first in the page: the fall of the error
+    // is what the report is for.
+    let mut history: Vec<(String, String)> = Vec::new();
     if model.history.len() > 1 {
         let names: Vec<String> = model.history.iter().map(|s| s.step.clone()).collect();
         let mut bars = Vec::new();
@@ -401,13 +424,15 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
                 bars.push((output, values, color));
             }
         }
-        add(
-            &format!(
-                "The error falling, step by step ({}): each step's validation NRMSE on the data it was fitted on.",
+        history.push((
+            format!(
+                "The error falling, step by step ({}): each step's validation NRMSE on the data it was fitted on, \
+                 as a share of the baseline's so that an angle's fall shows beside the pressures'; \
+                 the figure on a bar is the NRMSE itself.",
                 names.join(" → ")
             ),
-            bar_chart("validation NRMSE per step of the model's history", &names, &bars),
-        )?;
+            bar_chart("validation NRMSE per step of the model's history", &names, &bars)?,
+        ));
         // Each step's residual against the one before it, where the model
         // file kept the models the steps left.
         for pair in model.history.windows(2) {
@@ -428,8 +453,8 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
             };
             let r0 = residual(measured, &y0, scale);
             let r1 = residual(measured, &y1, scale);
-            add(
-                &format!(
+            history.push((
+                format!(
                     "Adding {}: the {output} residual before the step (grey) and after it (colour).",
                     pair[1].step
                 ),
@@ -447,8 +472,8 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
                     ],
                     false,
                     None,
-                ),
-            )?;
+                )?,
+            ));
         }
     }
 
@@ -467,6 +492,10 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         escape(&comparison.method)
     );
     let _ = write!(html, "<h2>Verdict</h2><p><b>{}</b></p>", escape(&diagnosis.verdict));
+    if !history.is_empty() {
+        html += "<h2>The model, step by step</h2>";
+        push_figures(&mut html, &history);
+    }
     html += "<h2>What this record can show</h2><ul>";
     for part in &diagnosis.parts {
         let _ = write!(html, "<li>fitted: {}</li>", escape(part.describe()));
@@ -518,16 +547,20 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         );
     }
     html += "</table><h2>Plots</h2>";
+    push_figures(&mut html, &figures);
+    html += "</body></html>\n";
+    std::fs::write(out, html).with_context(|| format!("writing the report to {}", out.display()))?;
+    crate::emit(&format!("report written to {}\n", out.display()))
+}
+
+fn push_figures(html: &mut String, figures: &[(String, String)]) {
     for (caption, svg) in figures {
         let _ = write!(
             html,
             "<figure>{svg}<figcaption>{}</figcaption></figure>",
-            escape(&caption)
+            escape(caption)
         );
     }
-    html += "</body></html>\n";
-    std::fs::write(out, html).with_context(|| format!("writing the report to {}", out.display()))?;
-    crate::emit(&format!("report written to {}\n", out.display()))
 }
 
 fn escape(text: &str) -> String {

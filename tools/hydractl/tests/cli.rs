@@ -308,10 +308,11 @@ fn model_fit_diagnose_add_compare_report_walk_towards_the_data() {
     );
     let html = std::fs::read_to_string(&report).expect("report");
     assert!(html.matches("<svg").count() >= 10, "plots in the report");
-    assert!(
-        html.contains("validation NRMSE per step"),
-        "the error falling, step by step"
-    );
+    let history = html
+        .find("validation NRMSE per step")
+        .expect("the error falling, step by step");
+    let diagnosis = html.find("<h2>Diagnosis").expect("the diagnosis");
+    assert!(history < diagnosis, "the model's history first, where a reader starts");
 }
 
 #[test]
