@@ -427,8 +427,7 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         history.push((
             format!(
                 "The error falling, step by step ({}): each step's validation NRMSE on the data it was fitted on, \
-                 as a share of the baseline's so that an angle's fall shows beside the pressures'; \
-                 the figure on a bar is the NRMSE itself.",
+                 as a share of the baseline's (the figure on a bar is the NRMSE itself).",
                 names.join(" → ")
             ),
             bar_chart("validation NRMSE per step of the model's history", &names, &bars)?,
