@@ -765,8 +765,8 @@ fn error_share(errors: &[(f64, f64)], alpha: f64) -> PairedTest {
     let ratio = if sum_before > 0.0 { sum_after / sum_before } else { 1.0 };
     let residuals: Vec<f64> = errors.iter().map(|(b, a)| a - ratio * b).collect();
     let effective = super::fit::effective_sample_size(&residuals, 1).clamp(1.0, n.max(1) as f64);
-    let mean = residuals.iter().sum::<f64>() / n.max(1) as f64;
-    let variance = residuals.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64;
+    // The residuals sum to zero: that is R.
+    let variance = residuals.iter().map(|r| r * r).sum::<f64>() / (n.max(2) - 1) as f64;
     let standard_error = variance.sqrt() / effective.sqrt() / (sum_before / n.max(1) as f64);
     let least = (1.0 - MIN_ERROR_REMOVED).powi(2);
     let statistic = if standard_error > 0.0 && standard_error.is_finite() {
