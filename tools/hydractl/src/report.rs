@@ -49,8 +49,11 @@ fn extent(all: &[&Series], extra: &[f64]) -> (Range<f64>, Range<f64>) {
         y = (0.0, 1.0);
     }
     let pad = ((y.1 - y.0) * 0.05).max(1e-12);
+    // Headroom for the legend, a line per series, so that it sits above
+    // the data rather than on it.
+    let headroom = pad + (y.1 - y.0).max(1e-12) * 0.12 * all.len() as f64;
     let xpad = if x.1 > x.0 { 0.0 } else { 1.0 };
-    (x.0 - xpad..x.1 + xpad, y.0 - pad..y.1 + pad)
+    (x.0 - xpad..x.1 + xpad, y.0 - pad..y.1 + headroom)
 }
 
 /// A chart as an SVG string: lines, or dots when `dots`, and dashed
@@ -131,6 +134,7 @@ fn finish<'a, 'b: 'a>(
 ) -> Result<(), String> {
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK.mix(0.3))
         .draw()
@@ -164,7 +168,7 @@ fn bar_chart(title: &str, steps: &[String], outputs: &[(&str, Vec<f64>, RGBColor
             .copied()
             .filter(|v| v.is_finite())
             .fold(100.0_f64, f64::max)
-            * 1.15;
+            * 1.4;
         let n = steps.len();
         let mut c = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 15))
