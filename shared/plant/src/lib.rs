@@ -12,7 +12,7 @@ mod sensor;
 
 pub use drift::{Drift, DriftSpec};
 pub use effects::{Effect, EffectKind, Effects, EffectsConfig, ParamSpec};
-pub use linearize::{baseline_linear_model, LINEAR_OUTPUTS, LINEAR_STATES, TORQUE_OUTPUT};
+pub use linearize::{affine_step, baseline_linear_model, LINEAR_OUTPUTS, LINEAR_STATES, TORQUE_OUTPUT};
 pub use params::{PlantParams, SensorParams};
 pub use plant::{Plant, PlantState};
 pub use sensor::{RawReading, SensorModel};

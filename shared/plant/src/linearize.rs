@@ -1,7 +1,7 @@
 //! Linear models of the rotator at an operating point.
 
 use hydractl_lti::StateSpace;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, SMatrix, SVector};
 
 use crate::plant::{ANGLE, P_A, P_B, SPOOL, SPOOL_RATE, STATES, VELOCITY};
 use crate::{Plant, PlantError, PlantParams, PlantState};
@@ -13,6 +13,33 @@ pub const TORQUE_OUTPUT: usize = 0;
 /// States of the linear models: spool, spool rate, p_a, p_b, angle, velocity.
 pub const LINEAR_STATES: [&str; 6] = ["spool", "spool_rate", "p_a", "p_b", "angle", "velocity"];
 const MAP: [usize; 6] = [SPOOL, SPOOL_RATE, P_A, P_B, ANGLE, VELOCITY];
+
+/// The exact one-step map, z ← Φ z, of a map that is affine where it is
+/// taken, ż = rates(z), its last coordinate the constant 1 and any input
+/// held over the step a coordinate of rate zero: Φ = exp(G h), G's columns
+/// by differences of `rates` about `reference` (exact for an affine map,
+/// whatever each coordinate's `delta`), its last column the offset that
+/// makes G z = rates(z). `reference`'s last coordinate must be 1.
+pub fn affine_step<const M: usize>(
+    rates: impl Fn(&SVector<f64, M>) -> SVector<f64, M>,
+    reference: SVector<f64, M>,
+    delta: impl Fn(usize) -> f64,
+    h: f64,
+) -> SMatrix<f64, M, M>
+where
+    nalgebra::Const<M>: nalgebra::DimMin<nalgebra::Const<M>, Output = nalgebra::Const<M>>,
+{
+    let at_reference = rates(&reference);
+    let mut generator = SMatrix::<f64, M, M>::zeros();
+    for i in 0..M - 1 {
+        let mut moved = reference;
+        moved[i] += delta(i);
+        generator.set_column(i, &((rates(&moved) - at_reference) / delta(i)));
+    }
+    let offset = at_reference - generator * reference;
+    generator.set_column(M - 1, &offset);
+    (generator * h).exp()
+}
 
 /// The baseline's linear model, written from eqs. (7)–(10) and (5): with the
 /// linearized flow the baseline is linear wherever the pressures are inside

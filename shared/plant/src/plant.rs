@@ -146,28 +146,24 @@ impl AffineStep {
         }
         reference[P_A] = neutral;
         reference[P_B] = neutral;
-        let rates = |x: &[f64; STATES], input: f64| SVector::<f64, STATES>::from(plant.derivative(x, input, 0.0));
-        let at_reference = rates(&reference, 0.0);
-        let mut linear = SMatrix::<f64, STATES, STATES>::zeros();
-        for i in 0..STATES {
-            let delta = match i {
-                P_A | P_B => 0.1 * room,
-                SPOOL => spool_delta,
-                _ => 1.0,
-            };
-            let mut moved = reference;
-            moved[i] += delta;
-            linear.set_column(i, &((rates(&moved, 0.0) - at_reference) / delta));
-        }
-        let mut generator = SMatrix::<f64, AUGMENTED, AUGMENTED>::zeros();
-        generator.fixed_view_mut::<STATES, STATES>(0, 0).copy_from(&linear);
-        generator
-            .fixed_view_mut::<STATES, 1>(0, STATES)
-            .copy_from(&(rates(&reference, 1.0) - at_reference));
-        generator
-            .fixed_view_mut::<STATES, 1>(0, STATES + 1)
-            .copy_from(&(at_reference - linear * SVector::<f64, STATES>::from(reference)));
-        let exact = (generator * plant.step).exp();
+        // z = [state, command, 1].
+        let rates = |z: &SVector<f64, AUGMENTED>| {
+            let mut state = [0.0; STATES];
+            state.copy_from_slice(&z.as_slice()[..STATES]);
+            let mut rate = SVector::<f64, AUGMENTED>::zeros();
+            rate.fixed_rows_mut::<STATES>(0)
+                .copy_from_slice(&plant.derivative(&state, z[STATES], 0.0));
+            rate
+        };
+        let mut at = SVector::<f64, AUGMENTED>::zeros();
+        at.fixed_rows_mut::<STATES>(0).copy_from_slice(&reference);
+        at[AUGMENTED - 1] = 1.0;
+        let delta = |i: usize| match i {
+            P_A | P_B => 0.1 * room,
+            SPOOL => spool_delta,
+            _ => 1.0,
+        };
+        let exact = crate::affine_step(rates, at, delta, plant.step);
         let step = Self {
             transition: exact.fixed_view::<STATES, STATES>(0, 0).into_owned(),
             from_input: exact.fixed_view::<STATES, 1>(0, STATES).into_owned(),

@@ -550,30 +550,18 @@ impl LinearHydraulicStep {
             return None;
         }
         // z = [spool, spool rate, p_a, p_b, velocity, its slope, command, 1].
-        let rates = |z: &[f64; 8]| -> nalgebra::SVector<f64, 8> {
+        let rates = |z: &nalgebra::SVector<f64, 8>| -> nalgebra::SVector<f64, 8> {
             let (ds, dr) = hydraulics::spool_rates(plant, effects, z[0], z[1], z[6]);
             let (da, db) = hydraulics::pressure_rates(plant, effects, z[0], z[2], z[3], z[4]);
             nalgebra::SVector::<f64, 8>::from([ds, dr, da, db, z[5], 0.0, 0.0, 0.0])
         };
-        let reference = [spool, 0.0, neutral, neutral, 0.0, 0.0, 0.0, 1.0];
-        let at_reference = rates(&reference);
-        let mut generator = nalgebra::SMatrix::<f64, 8, 8>::zeros();
-        for i in 0..7 {
-            let delta = match i {
-                0 => spool_delta,
-                2 | 3 => 0.1 * room,
-                _ => 1.0,
-            };
-            let mut moved = reference;
-            moved[i] += delta;
-            generator.set_column(i, &((rates(&moved) - at_reference) / delta));
-        }
-        let linear = generator;
-        generator.set_column(
-            7,
-            &(at_reference - linear * nalgebra::SVector::<f64, 8>::from(reference)),
-        );
-        let exact = (generator * h).exp();
+        let reference = nalgebra::SVector::<f64, 8>::from([spool, 0.0, neutral, neutral, 0.0, 0.0, 0.0, 1.0]);
+        let delta = |i: usize| match i {
+            0 => spool_delta,
+            2 | 3 => 0.1 * room,
+            _ => 1.0,
+        };
+        let exact = hydractl_plant::affine_step(rates, reference, delta, h);
         let step = Self {
             transition: exact.fixed_view::<4, 4>(0, 0).into_owned(),
             from_velocity: exact.fixed_view::<4, 1>(0, 4).into_owned(),
