@@ -155,15 +155,15 @@ impl AffineStep {
                 .copy_from_slice(&plant.derivative(&state, z[STATES], 0.0));
             rate
         };
-        let mut at = SVector::<f64, AUGMENTED>::zeros();
-        at.fixed_rows_mut::<STATES>(0).copy_from_slice(&reference);
-        at[AUGMENTED - 1] = 1.0;
+        let mut augmented = SVector::<f64, AUGMENTED>::zeros();
+        augmented.fixed_rows_mut::<STATES>(0).copy_from_slice(&reference);
+        augmented[AUGMENTED - 1] = 1.0;
         let delta = |i: usize| match i {
             P_A | P_B => 0.1 * room,
             SPOOL => spool_delta,
             _ => 1.0,
         };
-        let exact = crate::affine_step(rates, at, delta, plant.step);
+        let exact = crate::affine_step(rates, augmented, delta, plant.step);
         let step = Self {
             transition: exact.fixed_view::<STATES, STATES>(0, 0).into_owned(),
             from_input: exact.fixed_view::<STATES, 1>(0, STATES).into_owned(),
