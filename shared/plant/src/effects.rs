@@ -49,7 +49,6 @@ impl Deadzone {
     }
 }
 
-/// Spool travel limit.
 /// The piece of [`Effects::valve_band`] the spool is on: 0 below the
 /// band, 1 inside it (or everywhere, without a band), 2 above.
 #[inline]
@@ -78,6 +77,7 @@ pub fn valve_piece_probes(band: Option<Deadzone>) -> [Option<(f64, f64)>; 3] {
     }
 }
 
+/// Spool travel limit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Saturation {
     /// Largest spool travel, command units.

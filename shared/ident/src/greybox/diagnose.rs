@@ -94,6 +94,11 @@ pub struct Candidate {
     pub effective_segments: f64,
     /// The fitted parameters' standard deviations and inseparable pairs.
     pub uncertainty: Uncertainty,
+    /// The encoder's step, where every reading of the angle lies on its
+    /// lattice and the candidate is significant: shown by the readings
+    /// themselves, it ranks before what a test makes likely.
+    #[serde(skip)]
+    read_off_step: Option<f64>,
 }
 
 impl Candidate {
@@ -222,7 +227,7 @@ pub fn diagnose_with(
     let tried = kinds.len().max(1);
     // Each candidate judged: fitted from the baseline under its part's
     // loss, then tested against it on the validation segments.
-    let judge = |kind: &EffectKind, part: Part| -> Result<(Candidate, Model, bool, Option<f64>), ModelError> {
+    let judge = |kind: &EffectKind, part: Part| -> Result<(Candidate, Model, bool), ModelError> {
         let i = parts.iter().position(|p| *p == part).unwrap_or(0);
         let (mut refit, fitted) = fit_effect(signals, &base, *kind, options, losses[i])?;
         finished(kind.name());
@@ -318,10 +323,10 @@ pub fn diagnose_with(
                 segments: test.segments,
                 effective_segments: test.effective,
                 uncertainty,
+                read_off_step: on_lattice.filter(|_| significant).map(|(_, step)| step),
             },
             refit,
             plausible,
-            on_lattice.filter(|_| significant).map(|(_, step)| step),
         ))
     };
     // The candidates are independent: one per core, the longest fits
@@ -339,11 +344,10 @@ pub fn diagnose_with(
     let mut candidates = Vec::new();
     let mut fitted = BTreeMap::new();
     let mut plausible_effects = BTreeSet::new();
-    let mut read_off = BTreeMap::new();
     for (i, result) in judged {
         // A candidate that no start lets simulate is not judged, and says
         // so: one diverging fit on a real record must not cost the others.
-        let (candidate, refit, plausible, from_readings) = match result {
+        let (candidate, refit, plausible) = match result {
             Ok(judged) => judged,
             Err(ModelError::Fit(reason)) => {
                 not_judged.push(NotJudged {
@@ -357,16 +361,13 @@ pub fn diagnose_with(
         if plausible {
             plausible_effects.insert(candidate.effect.clone());
         }
-        if let Some(step) = from_readings {
-            read_off.insert(candidate.effect.clone(), step);
-        }
         fitted.insert(candidate.effect.clone(), refit);
         candidates.push(candidate);
     }
     // What the readings show for certain (a coarse encoder's lattice)
     // comes before what a test makes likely: with the staircase in the
     // model, the dynamics' effects are judged against the right noise.
-    let shown_by_readings = |c: &Candidate| read_off.contains_key(&c.effect);
+    let shown_by_readings = |c: &Candidate| c.read_off_step.is_some();
     candidates.sort_by(|a, b| {
         b.significant
             .cmp(&a.significant)
@@ -374,10 +375,14 @@ pub fn diagnose_with(
             .then(b.score.total_cmp(&a.score))
     });
     let verdict = match candidates.first() {
-        Some(best) if shown_by_readings(best) => format!(
-            "add `{}`: every reading of the angle lies on multiples of {:.5} rad, a coarse encoder (with it the {} validation NRMSE goes {})",
+        Some(
+            best @ Candidate {
+                read_off_step: Some(step),
+                ..
+            },
+        ) => format!(
+            "add `{}`: every reading of the angle lies on multiples of {step:.5} rad, a coarse encoder (with it the {} validation NRMSE goes {})",
             best.effect,
-            read_off.get(&best.effect).copied().unwrap_or(f64::NAN),
             best.output,
             before_after(best.validation_nrmse_before, best.validation_nrmse_after),
         ),
@@ -1130,6 +1135,7 @@ mod tests {
             segments: 36,
             effective_segments: 36.0,
             uncertainty: Default::default(),
+            read_off_step: None,
         }
     }
 
