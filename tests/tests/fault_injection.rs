@@ -111,12 +111,13 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
         restart_ms[KILLS - 1]
     );
     // The first back-off is 30 ms (after the valve guard trips), then the
-    // process starts. Here the slowest of a hundred took 75-89 ms; a loaded
-    // CI machine is given 100 ms for the 95th percentile, 200 ms for the
-    // slowest.
+    // process starts. What is asserted is that the watchdog brings every
+    // process back at once, not how fast this machine starts one: the 95th
+    // percentile was 75-89 ms here once, 100-112 ms in another hour (with
+    // the same code, a median of 69-80 ms), so it is held to 150 ms.
     assert!(
-        restart_ms[KILLS * 95 / 100] < 100.0,
-        "back within 100 ms: {restart_ms:?}"
+        restart_ms[KILLS * 95 / 100] < 150.0,
+        "back within 150 ms: {restart_ms:?}"
     );
     // One kill in a hundred may meet a stall of this virtual machine's CPU
     // (once 350 ms, in 2 of 5 full suites here): the slowest but one is held
