@@ -625,6 +625,17 @@ impl PairedTest {
     fn passed(&self) -> bool {
         self.statistic > self.threshold
     }
+
+    /// How near the test came to passing: its statistic over its
+    /// threshold, the same measure for a t and a z.
+    fn share_of_threshold(&self) -> f64 {
+        let share = self.statistic / self.threshold;
+        if share.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            share
+        }
+    }
 }
 
 /// The least fall of a segment's log squared error that counts:
@@ -640,7 +651,9 @@ const SIGNED_RANK_MIN_EFFECTIVE: f64 = 20.0;
 /// Whether `after` predicts `part`'s output better than `before` by more
 /// than [`MIN_ERROR_REMOVED`], segment by segment of `validation`. Three
 /// one-sided tests share the effect's α (Bonferroni: α / `tried`, split
-/// among the tests run), and the first that passes is reported, else the t:
+/// among the tests run), and the first that passes is reported, else the
+/// one that came nearest (its statistic the largest share of its
+/// threshold):
 /// - a paired t of d, the log of each segment's squared error before over
 ///   after, against d₀ = [`least_fall`]: (mean(d) − d₀) / (sd(d) / √n_eff),
 ///   against the t quantile with n_eff − 1 degrees of freedom, n_eff the
@@ -677,11 +690,20 @@ fn paired_test(
     let t = paired_t(&differences, effective, alpha);
     let rank = with_rank.then(|| signed_rank(&differences, effective, alpha));
     let share = error_share(&errors, alpha);
-    [Some(t), rank, Some(share)]
-        .into_iter()
-        .flatten()
-        .find(PairedTest::passed)
-        .unwrap_or(t)
+    let run: Vec<PairedTest> = [Some(t), rank, Some(share)].into_iter().flatten().collect();
+    reported(&run).unwrap_or(t)
+}
+
+/// Of the tests run, in their order, the first that passed, else the one
+/// that came nearest.
+fn reported(run: &[PairedTest]) -> Option<PairedTest> {
+    run.iter()
+        .find(|test| test.passed())
+        .or_else(|| {
+            run.iter()
+                .max_by(|a, b| a.share_of_threshold().total_cmp(&b.share_of_threshold()))
+        })
+        .copied()
 }
 
 /// Each validation segment's squared error before and after, summed over
@@ -1008,8 +1030,44 @@ mod tests {
     use std::collections::{BTreeMap, BTreeSet};
 
     use super::{
-        before_after, error_share, least_fall, nearest, paired_t, readings_on_lattice, signed_rank, Candidate,
+        before_after, error_share, least_fall, nearest, paired_t, readings_on_lattice, reported, signed_rank,
+        Candidate, PairedTest, SegmentTest,
     };
+
+    /// When no test passes, the one that came nearest is reported: a t
+    /// far below its threshold says less than a share just under its own.
+    #[test]
+    fn the_first_test_passed_is_reported_else_the_nearest() {
+        let test = |kind, statistic, threshold| PairedTest {
+            kind,
+            statistic,
+            threshold,
+            segments: 36,
+            effective: 30.0,
+        };
+        let kinds = |run: &[PairedTest]| reported(run).map(|t| t.kind.name());
+        let (t, rank, share) = (SegmentTest::PairedT, SegmentTest::SignedRank, SegmentTest::ErrorShare);
+        assert_eq!(
+            kinds(&[test(t, 2.8, 3.7), test(rank, 1.0, 3.4), test(share, 3.6, 3.8)]),
+            Some("error_share")
+        );
+        assert_eq!(
+            kinds(&[test(t, 2.8, 3.7), test(rank, 3.5, 3.4), test(share, 5.0, 3.8)]),
+            Some("signed_rank"),
+            "the first passed, not the largest"
+        );
+        assert_eq!(
+            kinds(&[test(t, -1.0, 3.7), test(share, -3.0, f64::INFINITY)]),
+            Some("error_share"),
+            "too few segments for a threshold: a share of 0, above a negative one"
+        );
+        assert_eq!(
+            kinds(&[test(t, f64::INFINITY, f64::INFINITY), test(share, 1.0, 3.8)]),
+            Some("error_share"),
+            "an undefined share is never the nearest"
+        );
+        assert_eq!(kinds(&[]), None);
+    }
 
     /// A delay's pattern on a foreign plant with noisy sensors: every sixth
     /// segment, where the command steps, holds most of the error and loses
