@@ -650,8 +650,9 @@ const SIGNED_RANK_MIN_EFFECTIVE: f64 = 20.0;
 
 /// Whether `after` predicts `part`'s output better than `before` by more
 /// than [`MIN_ERROR_REMOVED`], segment by segment of `validation`. Three
-/// one-sided tests share the effect's α (Bonferroni: α / `tried`, split
-/// among the tests run), and the first that passes is reported, else the
+/// one-sided tests share the effect's α (Bonferroni over the effects: α /
+/// `tried`; among the tests, by how they move together, [`joint_level`]),
+/// and the first that passes is reported, else the
 /// one that came nearest (its statistic the largest share of its
 /// threshold):
 /// - a paired t of d, the log of each segment's squared error before over
@@ -686,7 +687,16 @@ fn paired_test(
     // them as fewer independent ones.
     let effective = super::fit::effective_sample_size(&differences, 1).clamp(1.0, n as f64);
     let with_rank = effective >= SIGNED_RANK_MIN_EFFECTIVE;
-    let alpha = FAMILY_ALPHA / tried as f64 / if with_rank { 3.0 } else { 2.0 };
+    // Each segment's part in each test's statistic: how the tests move
+    // together, and so how much of the effect's α each may take.
+    let ranks = signed_ranks(&differences).0;
+    let share_part: Vec<f64> = share_residuals(&errors).1.iter().map(|r| -r).collect();
+    let parts: Vec<&[f64]> = if with_rank {
+        vec![&differences, &ranks, &share_part]
+    } else {
+        vec![&differences, &share_part]
+    };
+    let alpha = joint_level(&parts, FAMILY_ALPHA / tried as f64);
     let t = paired_t(&differences, effective, alpha);
     let rank = with_rank.then(|| signed_rank(&differences, effective, alpha));
     let share = error_share(&errors, alpha);
@@ -788,9 +798,8 @@ fn paired_t(differences: &[f64], effective: f64, alpha: f64) -> PairedTest {
 /// same in bar and in rad.
 fn error_share(errors: &[(f64, f64)], alpha: f64) -> PairedTest {
     let n = errors.len();
-    let (sum_before, sum_after) = errors.iter().fold((0.0, 0.0), |(b, a), (eb, ea)| (b + eb, a + ea));
-    let ratio = if sum_before > 0.0 { sum_after / sum_before } else { 1.0 };
-    let residuals: Vec<f64> = errors.iter().map(|(b, a)| a - ratio * b).collect();
+    let sum_before: f64 = errors.iter().map(|(before, _)| before).sum();
+    let (ratio, residuals) = share_residuals(errors);
     let effective = super::fit::effective_sample_size(&residuals, 1).clamp(1.0, n.max(1) as f64);
     // The residuals sum to zero: that is R.
     let variance = residuals.iter().map(|r| r * r).sum::<f64>() / (n.max(2) - 1) as f64;
@@ -812,6 +821,148 @@ fn error_share(errors: &[(f64, f64)], alpha: f64) -> PairedTest {
     }
 }
 
+/// R = Σaᵢ / Σbᵢ over the segments' squared errors after (a) and before
+/// (b), and each segment's residual aᵢ − R·bᵢ: its part in R's error.
+fn share_residuals(errors: &[(f64, f64)]) -> (f64, Vec<f64>) {
+    let (sum_before, sum_after) = errors.iter().fold((0.0, 0.0), |(b, a), (eb, ea)| (b + eb, a + ea));
+    let ratio = if sum_before > 0.0 { sum_after / sum_before } else { 1.0 };
+    (ratio, errors.iter().map(|(b, a)| a - ratio * b).collect())
+}
+
+/// Each segment's signed rank of d − d₀ ([`least_fall`]) by its size, in
+/// the segments' order (ties given their mean rank; zero for a zero or an
+/// undefined d − d₀, which the test drops), and the ties' correction
+/// Σ (t³ − t) to the rank sum's variance.
+fn signed_ranks(differences: &[f64]) -> (Vec<f64>, f64) {
+    let beyond: Vec<f64> = differences.iter().map(|d| d - least_fall()).collect();
+    let mut order: Vec<usize> = (0..beyond.len())
+        .filter(|&i| beyond[i] != 0.0 && beyond[i].is_finite())
+        .collect();
+    order.sort_by(|&a, &b| beyond[a].abs().total_cmp(&beyond[b].abs()));
+    let mut ranks = vec![0.0; beyond.len()];
+    let mut tie_correction = 0.0;
+    let mut i = 0;
+    while i < order.len() {
+        let mut j = i;
+        while j + 1 < order.len() && beyond[order[j + 1]].abs() == beyond[order[i]].abs() {
+            j += 1;
+        }
+        let rank = (i + j) as f64 / 2.0 + 1.0;
+        for &k in &order[i..=j] {
+            ranks[k] = rank.copysign(beyond[k]);
+        }
+        let tied = (j - i + 1) as f64;
+        tie_correction += tied.powi(3) - tied;
+        i = j + 1;
+    }
+    (ranks, tie_correction)
+}
+
+/// The level at which each of several one-sided tests is judged so that
+/// the chance that any of them passes, on data where none should, stays
+/// within `alpha`. The tests read the same segments: their statistics,
+/// nearly normal, move together as each segment's `parts` in them do.
+/// Hunter's bound holds that chance: the sum of the tests' levels less
+/// the chance of passing two together, along the most correlated pairs (a
+/// spanning tree). Between α / k (Bonferroni, tests that share nothing)
+/// and α (one test asked k times).
+fn joint_level(parts: &[&[f64]], alpha: f64) -> f64 {
+    let k = parts.len();
+    if k < 2 {
+        return alpha;
+    }
+    let mut correlations = vec![vec![0.0; k]; k];
+    for i in 0..k {
+        for j in 0..i {
+            let r = pearson(parts[i], parts[j]);
+            (correlations[i][j], correlations[j][i]) = (r, r);
+        }
+    }
+    // The pairs of the tree: the most correlated first (Prim's), for
+    // those share the most.
+    let mut in_tree = vec![false; k];
+    in_tree[0] = true;
+    let mut pairs = Vec::with_capacity(k - 1);
+    for _ in 1..k {
+        let best = (0..k)
+            .filter(|&i| in_tree[i])
+            .flat_map(|i| (0..k).filter(|&j| !in_tree[j]).map(move |j| (i, j)))
+            .max_by(|a, b| correlations[a.0][a.1].total_cmp(&correlations[b.0][b.1]));
+        let Some((i, j)) = best else { break };
+        in_tree[j] = true;
+        pairs.push(correlations[i][j]);
+    }
+    let Ok(normal) = Normal::new(0.0, 1.0) else {
+        return alpha / k as f64;
+    };
+    // The chance that any passes at the quantile c, by Hunter's bound;
+    // it falls as c rises.
+    let any_passes = |c: f64| {
+        let one = 1.0 - normal.cdf(c);
+        k as f64 * one - pairs.iter().map(|&r| both_exceed(c, r, &normal)).sum::<f64>()
+    };
+    let (mut low, mut high) = (
+        normal.inverse_cdf(1.0 - alpha),
+        normal.inverse_cdf(1.0 - alpha / k as f64),
+    );
+    for _ in 0..60 {
+        let mid = 0.5 * (low + high);
+        if any_passes(mid) > alpha {
+            low = mid;
+        } else {
+            high = mid;
+        }
+    }
+    1.0 - normal.cdf(high)
+}
+
+/// P(X > c, Y > c) for standard normals X, Y of correlation `r`:
+/// 1 − Φ(c) − 2 T(c, √((1 − r) / (1 + r))), T Owen's function.
+fn both_exceed(c: f64, r: f64, normal: &Normal) -> f64 {
+    let r = r.clamp(-1.0 + 1e-12, 1.0);
+    let a = ((1.0 - r) / (1.0 + r)).sqrt();
+    (1.0 - normal.cdf(c) - 2.0 * owens_t(c, a)).max(0.0)
+}
+
+/// Owen's T(h, a) = (1 / 2π) ∫₀ᵃ exp(−h²(1 + x²) / 2) / (1 + x²) dx, by
+/// Simpson's rule; past x = 10 / |h| (and 10) the integrand is nil at the
+/// quantiles judged here.
+fn owens_t(h: f64, a: f64) -> f64 {
+    let upper = a.min(10.0 / h.abs().max(1.0));
+    if upper <= 0.0 {
+        return 0.0;
+    }
+    const STEPS: usize = 400;
+    let step = upper / STEPS as f64;
+    let f = |x: f64| (-0.5 * h * h * (1.0 + x * x)).exp() / (1.0 + x * x);
+    let inner: f64 = (1..STEPS)
+        .map(|i| f(i as f64 * step) * if i % 2 == 1 { 4.0 } else { 2.0 })
+        .sum();
+    (f(0.0) + inner + f(upper)) * step / 3.0 / (2.0 * std::f64::consts::PI)
+}
+
+/// The correlation of two equally long series; zero where either is flat.
+fn pearson(x: &[f64], y: &[f64]) -> f64 {
+    let n = x.len().min(y.len());
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = |v: &[f64]| v[..n].iter().sum::<f64>() / n as f64;
+    let (mx, my) = (mean(x), mean(y));
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in x[..n].iter().zip(&y[..n]) {
+        sxy += (a - mx) * (b - my);
+        sxx += (a - mx).powi(2);
+        syy += (b - my).powi(2);
+    }
+    let r = sxy / (sxx * syy).sqrt();
+    if r.is_finite() {
+        r
+    } else {
+        0.0
+    }
+}
+
 /// The one-sided Wilcoxon signed-rank test of `differences` beyond
 /// [`least_fall`] at `alpha`, by its normal approximation (ties given
 /// their mean rank and the variance corrected for them, zeros dropped),
@@ -819,26 +970,9 @@ fn error_share(errors: &[(f64, f64)], alpha: f64) -> PairedTest {
 /// the candidate must also lower the output's error as a whole.
 fn signed_rank(differences: &[f64], effective: f64, alpha: f64) -> PairedTest {
     let n = differences.len();
-    let mut beyond: Vec<f64> = differences
-        .iter()
-        .map(|d| d - least_fall())
-        .filter(|x| *x != 0.0 && x.is_finite())
-        .collect();
-    beyond.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
-    let (mut positive_ranks, mut tie_correction) = (0.0, 0.0);
-    let mut i = 0;
-    while i < beyond.len() {
-        let mut j = i;
-        while j + 1 < beyond.len() && beyond[j + 1].abs() == beyond[i].abs() {
-            j += 1;
-        }
-        let rank = (i + j) as f64 / 2.0 + 1.0;
-        positive_ranks += rank * beyond[i..=j].iter().filter(|x| **x > 0.0).count() as f64;
-        let tied = (j - i + 1) as f64;
-        tie_correction += tied.powi(3) - tied;
-        i = j + 1;
-    }
-    let m = beyond.len() as f64;
+    let (ranks, tie_correction) = signed_ranks(differences);
+    let positive_ranks: f64 = ranks.iter().filter(|r| **r > 0.0).sum();
+    let m = ranks.iter().filter(|r| **r != 0.0).count() as f64;
     let mean = m * (m + 1.0) / 4.0;
     let variance = (m * (m + 1.0) * (2.0 * m + 1.0) / 24.0 - tie_correction / 48.0) * (n as f64 / effective);
     let statistic = if variance > 0.0 {
@@ -1030,9 +1164,54 @@ mod tests {
     use std::collections::{BTreeMap, BTreeSet};
 
     use super::{
-        before_after, error_share, least_fall, nearest, paired_t, readings_on_lattice, reported, signed_rank,
-        Candidate, PairedTest, SegmentTest,
+        before_after, both_exceed, error_share, joint_level, least_fall, nearest, owens_t, paired_t,
+        readings_on_lattice, reported, signed_rank, Candidate, PairedTest, SegmentTest,
     };
+    use statrs::distribution::{ContinuousCDF, Normal};
+
+    /// Owen's T at two closed forms: T(h, 1) = Φ(h)(1 − Φ(h)) / 2 and
+    /// T(0, a) = atan(a) / 2π; and the joint tail of two normals at three
+    /// correlations.
+    #[test]
+    fn owens_t_and_the_joint_tail_match_their_closed_forms() {
+        let normal = Normal::new(0.0, 1.0).expect("the standard normal");
+        for h in [0.5, 2.0, 3.5] {
+            let expected = 0.5 * normal.cdf(h) * (1.0 - normal.cdf(h));
+            assert!(
+                (owens_t(h, 1.0) - expected).abs() < 1e-9 * expected.max(1e-3),
+                "T({h}, 1)"
+            );
+        }
+        assert!((owens_t(0.0, 2.0) - 2f64.atan() / (2.0 * std::f64::consts::PI)).abs() < 1e-9);
+        let tail = 1.0 - normal.cdf(3.5);
+        assert!((both_exceed(3.5, 1.0, &normal) - tail).abs() < 1e-12);
+        let independent = both_exceed(3.5, 0.0, &normal);
+        assert!(
+            (independent - tail * tail).abs() < 1e-3 * tail * tail,
+            "{independent} against {}",
+            tail * tail
+        );
+        assert!(both_exceed(3.5, -0.9, &normal) < 1e-12);
+    }
+
+    /// Tests that read the same thing share the whole α; tests that share
+    /// nothing split it (Bonferroni, nearly); between, a level between.
+    #[test]
+    fn the_tests_level_follows_how_they_move_together() {
+        let alpha = 0.001;
+        let wave: Vec<f64> = (0..36).map(|i| (i as f64 * 0.7).sin()).collect();
+        let twice: Vec<f64> = wave.iter().map(|x| 2.0 * x + 1.0).collect();
+        let level = joint_level(&[&wave, &twice, &wave], alpha);
+        assert!((level - alpha).abs() < 1e-6 * alpha, "{level}");
+        let other: Vec<f64> = (0..36).map(|i| (i as f64 * 0.7).cos()).collect();
+        let orthogonal: Vec<f64> = (0..36).map(|i| if i % 2 == 0 { 1.0 } else { -1.0 }).collect();
+        let apart = joint_level(&[&wave, &other, &orthogonal], alpha);
+        assert!(apart >= alpha / 3.0 && apart < 1.05 * alpha / 3.0, "{apart}");
+        let noisy: Vec<f64> = wave.iter().zip(&other).map(|(w, o)| w + 0.3 * o).collect();
+        let between = joint_level(&[&wave, &noisy], alpha);
+        assert!(between > alpha / 2.0 && between < alpha, "{between}");
+        assert_eq!(joint_level(&[&wave], alpha), alpha);
+    }
 
     /// When no test passes, the one that came nearest is reported: a t
     /// far below its threshold says less than a share just under its own.
