@@ -617,8 +617,17 @@ pub fn predict_mechanical(
         effects,
         linear: mechanics::LinearStep::new(plant, effects, signals.dt),
     };
+    let moving = moving_speed(signals, range.clone());
     for segment in segments(signals, range) {
         let start = segment.start;
+        // Where the actuator sits in the play, from the data before the
+        // segment: behind the encoder by half the play, on the side of its
+        // last motion (a load that stopped stays where it was pushed). A
+        // model with a play chooses nothing on the segment it is judged on
+        // that the baseline may not.
+        let play = effects
+            .backlash
+            .map(|b| 0.5 * b.width * last_motion_sign(signals, start, moving));
         let mut initial_angle = signals.theta_smooth[start];
         let mut initial_velocity = signals.velocity[start];
         if let Some(friction) = effects.coulomb_friction {
@@ -635,8 +644,8 @@ pub fn predict_mechanical(
         let staircase = effects.quantization.map(|q| Staircase::of(q.step, measured));
         // Simulates the segment from an initial state (and a position in the
         // play) into `shaft`, and keeps it in `best` when it fits better.
-        let mut try_start = |initial: (f64, f64), play: Option<f64>, shaft: &mut Vec<f64>| {
-            simulate_segment(&model, signals, segment.clone(), initial, play, shaft);
+        let mut try_start = |initial: (f64, f64), shaft: &mut Vec<f64>| {
+            simulate_segment(&model, signals, segment.clone(), initial, play.unwrap_or(0.0), shaft);
             keep_if_better(effects, staircase.as_ref(), measured, shaft, &mut best, &mut best_error);
         };
         // Without a mechanical effect the correction is exact: two passes
@@ -644,25 +653,13 @@ pub fn predict_mechanical(
         // correction fits the shaft before its reading: exact as well.
         let passes = if nonlinear_mechanics(effects) { 3 } else { 2 };
         for pass in 0..passes {
-            try_start((initial_angle, initial_velocity), None, &mut shaft);
+            try_start((initial_angle, initial_velocity), &mut shaft);
             if pass + 1 == passes {
                 break;
             }
             let (d_angle, d_velocity) = initial_state_correction(plant, signals, segment.clone(), &shaft);
             initial_angle += d_angle;
             initial_velocity += d_velocity;
-        }
-        // Where the encoder sits within the play at the segment's start is
-        // not known from the velocity alone (a load at rest may sit
-        // anywhere in it): try both ends of the play and its middle. (Five
-        // or seven positions fitted no better on 60 s runs at seeds 1–2,
-        // and cost diagnose most of a second.)
-        if let Some(backlash) = effects.backlash {
-            const POSITIONS: usize = 3;
-            for i in 0..POSITIONS {
-                let play = backlash.width * (i as f64 / (POSITIONS - 1) as f64 - 0.5);
-                try_start((initial_angle, initial_velocity), Some(play), &mut shaft);
-            }
         }
         if let Some(staircase) = &staircase {
             refine_on_staircase(plant, signals, staircase, measured, &mut best);
@@ -1017,28 +1014,39 @@ struct Mechanics<'a> {
     linear: Option<mechanics::LinearStep>,
 }
 
+/// The speed above which the angle is moving, not noise: a tenth of its
+/// RMS over `range`.
+fn moving_speed(signals: &Signals, range: Range<usize>) -> f64 {
+    let velocity = &signals.velocity[range];
+    let mean_square = velocity.iter().map(|v| v * v).sum::<f64>() / velocity.len().max(1) as f64;
+    0.1 * mean_square.sqrt()
+}
+
+/// The direction of the angle's last motion at or before `at`, faster than
+/// `moving`: +1, −1, or 0 when it has not moved since the record began.
+fn last_motion_sign(signals: &Signals, at: usize, moving: f64) -> f64 {
+    signals.velocity[..=at.min(signals.velocity.len().saturating_sub(1))]
+        .iter()
+        .rev()
+        .find(|v| v.abs() > moving)
+        .map_or(0.0, |v| v.signum())
+}
+
 /// One segment of the mechanical part from a given initial state (the
 /// encoder's angle and the velocity); writes the encoder shaft's angle
-/// (before quantization) into `shaft`. With backlash, `play` is where the
-/// actuator starts relative to the encoder within the play; `None` takes
-/// half the play behind the motion, or the middle at rest.
+/// (before quantization) into `shaft`. With backlash, the actuator starts
+/// `lag` ahead of the encoder within the play.
 fn simulate_segment(
     model: &Mechanics,
     signals: &Signals,
     segment: Range<usize>,
     (initial_angle, initial_velocity): (f64, f64),
-    play: Option<f64>,
+    lag: f64,
     shaft: &mut Vec<f64>,
 ) {
     let Mechanics { plant, effects, linear } = model;
     shaft.clear();
     let h = signals.dt;
-    // The encoder lags the actuator by half the play while moving.
-    let lag = match (effects.backlash, play) {
-        (Some(_), Some(play)) => play,
-        (Some(b), None) if initial_velocity != 0.0 => 0.5 * b.width * initial_velocity.signum(),
-        _ => 0.0,
-    };
     let angle = initial_angle + lag;
     let mut motion: mechanics::Motion = [angle, initial_velocity, angle, initial_velocity];
     let mut follower = initial_angle;
