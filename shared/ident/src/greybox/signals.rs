@@ -40,6 +40,10 @@ pub struct Signals {
     pub velocity: Vec<f64>,
     /// The velocity's slope by the same local line, rad/s².
     pub acceleration: Vec<f64>,
+    /// The direction of the angle's last motion at or before each sample
+    /// (by the smoothed velocity): +1, −1, or 0 before the first. Where a
+    /// load sits in a play comes from it.
+    pub last_motion: Vec<f64>,
     /// Whether the record has the valve command and the chamber pressures.
     pub has_command: bool,
     pub has_pressures: bool,
@@ -129,6 +133,7 @@ impl Signals {
         let half_width = ((SMOOTHING_HALF_WIDTH_S / dt).round() as usize).max(1);
         let (theta_smooth, velocity) = local_line(&theta, dt, half_width);
         let acceleration = local_line(&velocity, dt, half_width).1;
+        let last_motion = last_motion(&velocity);
         Ok(Self {
             source,
             dt,
@@ -141,6 +146,7 @@ impl Signals {
             theta_smooth,
             velocity,
             acceleration,
+            last_motion,
             has_command,
             has_pressures,
         })
@@ -182,6 +188,24 @@ impl Signals {
     pub fn split(&self, estimation_fraction: f64) -> usize {
         ((self.len() as f64 * estimation_fraction).round() as usize).clamp(1, self.len() - 1)
     }
+}
+
+/// The direction of the last motion at or before each sample: the sign of
+/// the last smoothed velocity faster than a tenth of the record's RMS
+/// (motion, not noise).
+fn last_motion(velocity: &[f64]) -> Vec<f64> {
+    let mean_square = velocity.iter().map(|v| v * v).sum::<f64>() / velocity.len().max(1) as f64;
+    let moving = 0.1 * mean_square.sqrt();
+    let mut sign = 0.0;
+    velocity
+        .iter()
+        .map(|v| {
+            if v.abs() > moving {
+                sign = v.signum();
+            }
+            sign
+        })
+        .collect()
 }
 
 /// The slope of `x` by the same local line as the velocity's.
@@ -349,6 +373,19 @@ mod tests {
         assert!(text.contains("`p_a` without `p_b`"), "{text}");
         let text = reason(&record(&["theta"], &[]));
         assert!(text.contains("nothing drives the model"), "{text}");
+    }
+
+    #[test]
+    fn the_last_motion_outlasts_the_motion_and_ignores_noise() {
+        // Still, then forward, then still with a little noise, then back.
+        let mut velocity = vec![0.0; 10];
+        velocity.extend([1.0; 10]);
+        velocity.extend((0..10).map(|i| if i % 2 == 0 { 0.01 } else { -0.01 }));
+        velocity.extend([-1.0; 10]);
+        let signs = last_motion(&velocity);
+        assert!(signs[..10].iter().all(|&s| s == 0.0), "{signs:?}");
+        assert!(signs[10..30].iter().all(|&s| s == 1.0), "{signs:?}");
+        assert!(signs[30..].iter().all(|&s| s == -1.0), "{signs:?}");
     }
 
     #[test]
