@@ -14,9 +14,13 @@
 //! data is closed-loop, so a free-run simulation would drift. Both parts are
 //! compared by **multiple shooting**: the record is cut into 0.5 s segments;
 //! each pressure segment starts from the measured pressures, and each angle
-//! segment from an initial angle and velocity estimated by least squares on
-//! that segment (MATLAB `compare`'s `'estimate'` initial condition, per
-//! segment). The spool runs through the whole record unbroken.
+//! segment from an initial angle and velocity estimated on that segment
+//! (MATLAB `compare`'s `'estimate'` initial condition, per segment). Every
+//! model gets those two values and no more, chosen by its own squared error
+//! on the segment (least squares, or a search on a coarse encoder's
+//! staircase): validation gives no model a freedom another lacks. The play's
+//! position comes from the data before the segment, and the spool runs
+//! through the whole record unbroken.
 
 mod compare;
 mod diagnose;
@@ -663,7 +667,7 @@ pub fn predict_mechanical(
             initial_velocity += d_velocity;
         }
         if let Some(staircase) = &staircase {
-            refine_on_staircase(plant, signals, staircase, measured, &mut best);
+            refine_on_staircase(plant, signals.dt, staircase, measured, &mut best);
         }
         // A diverged simulation leaves NaN, which the fit refuses.
         best.resize(segment.len(), f64::NAN);
@@ -902,13 +906,7 @@ fn nearest_first(count: usize, distance: impl Fn(usize) -> usize, error: impl Fn
 /// coarse grid and then a finer one around its best, for the shift of the
 /// segment that reproduces the measured staircase best; the velocity
 /// shifts the path by the rigid body's sensitivity.
-fn refine_on_staircase(
-    plant: &PlantParams,
-    signals: &Signals,
-    staircase: &Staircase,
-    measured: &[f64],
-    path: &mut [f64],
-) {
+fn refine_on_staircase(plant: &PlantParams, dt: f64, staircase: &Staircase, measured: &[f64], path: &mut [f64]) {
     const GRID: i32 = 6;
     const SIDE: usize = 2 * GRID as usize + 1;
     let n = path.len().min(measured.len());
@@ -918,8 +916,8 @@ fn refine_on_staircase(
     if n < 2 || steps_taken * 10 >= n {
         return;
     }
-    let sensitivity: Vec<f64> = velocity_sensitivity(plant, signals.dt).take(n).collect();
-    let span_t = sensitivity[n - 1].max(signals.dt);
+    let sensitivity: Vec<f64> = velocity_sensitivity(plant, dt).take(n).collect();
+    let span_t = sensitivity[n - 1].max(dt);
     let (measured_counts, path_counts) = (&staircase.measured_counts[..n], staircase.in_counts(&path[..n]));
     // In counts: half a step of angle, two steps per segment of velocity.
     let (mut angle_span, mut velocity_span) = (0.5, 2.0 / span_t);
@@ -1141,6 +1139,57 @@ mod tests {
         // The √Δp valve law is not linear by pieces.
         effects.orifice_flow = Some(hydractl_plant::effects::OrificeFlow);
         assert!(HydraulicSteps::new(&plant, &effects, h).is_none());
+    }
+
+    #[test]
+    fn the_staircase_search_moves_nothing_but_the_initial_angle_and_velocity() {
+        // A coarse encoder on a slow swing: the least-squares path is off
+        // the true shaft by a third of a step and a slip in velocity, which
+        // its staircase shows. The search may take back just those two: the
+        // same initial state every model gets, chosen by the model's own
+        // error, and nothing more.
+        let plant = PlantParams::default();
+        let (dt, n) = (1e-3, 500);
+        let step = 0.01;
+        let sensitivity: Vec<f64> = velocity_sensitivity(&plant, dt).take(n).collect();
+        let shaft: Vec<f64> = (0..n).map(|i| 0.05 * (2.0 * i as f64 * dt).sin()).collect();
+        let measured: Vec<f64> = shaft.iter().map(|a| Quantization { step }.quantize(*a)).collect();
+        let (angle_slip, velocity_slip) = (0.35 * step, 0.6 * step / (n as f64 * dt));
+        let start: Vec<f64> = shaft
+            .iter()
+            .zip(&sensitivity)
+            .map(|(a, g)| a - angle_slip - velocity_slip * g)
+            .collect();
+        let mut path = start.clone();
+        refine_on_staircase(&plant, dt, &Staircase::of(step, &measured), &measured, &mut path);
+        let moved: Vec<f64> = path.iter().zip(&start).map(|(p, s)| p - s).collect();
+        let (angle, velocity) = (moved[0], (moved[n - 1] - moved[0]) / sensitivity[n - 1]);
+        for (m, g) in moved.iter().zip(&sensitivity) {
+            assert!(
+                (m - (angle + velocity * g)).abs() < 1e-12,
+                "a change of the initial state alone"
+            );
+        }
+        assert!(
+            (angle - angle_slip).abs() < 0.1 * step,
+            "angle {angle} for {angle_slip}"
+        );
+        assert!(
+            (velocity - velocity_slip).abs() < 0.2 * velocity_slip,
+            "velocity {velocity} for {velocity_slip}"
+        );
+        let error = |path: &[f64]| -> f64 {
+            path.iter()
+                .zip(&measured)
+                .map(|(p, m)| (Quantization { step }.quantize(*p) - m).powi(2))
+                .sum()
+        };
+        assert!(
+            error(&path) < 0.1 * error(&start),
+            "{} against {}",
+            error(&path),
+            error(&start)
+        );
     }
 
     #[test]
