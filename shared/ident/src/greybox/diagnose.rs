@@ -99,6 +99,10 @@ pub struct Candidate {
     /// themselves, it ranks before what a test makes likely.
     #[serde(skip)]
     read_off_step: Option<f64>,
+    /// Why a fit that the test would pass is not the effect it names: it
+    /// stands in for something the catalog lacks.
+    #[serde(skip)]
+    stands_in: Option<String>,
 }
 
 impl Candidate {
@@ -279,6 +283,7 @@ pub fn diagnose_with(
         // resolves, is turned down whatever the test says.
         let plausible = resolution.is_none_or(|share| share >= RESOLUTION_SHARE) && not_itself.is_none();
         let significant = shown && plausible;
+        let stands_in = not_itself.clone().filter(|_| shown);
         let evidence = evidence(
             *kind,
             part,
@@ -324,6 +329,7 @@ pub fn diagnose_with(
                 effective_segments: test.effective,
                 uncertainty,
                 read_off_step: on_lattice.filter(|_| significant).map(|(_, step)| step),
+                stands_in,
             },
             refit,
             plausible,
@@ -399,22 +405,7 @@ pub fn diagnose_with(
             best.threshold
         )
         }
-        _ => match nearest(&candidates, &plausible_effects) {
-            // A fall the test could not make sure of is worth a user's
-            // knowing: a longer record, or one that excites it more, may.
-            Some(near) => format!(
-                "no effect of the catalog helps significantly; the nearest, `{}`, lowers the {} validation NRMSE {}, not surely ({} = {:.1} against {:.1} over {} segments; tried alone, at {:.0} %, it would pass): a longer record may tell",
-                near.effect,
-                near.output,
-                before_after(near.validation_nrmse_before, near.validation_nrmse_after),
-                near.statistic_symbol(),
-                near.statistic,
-                near.threshold,
-                near.segments,
-                100.0 * NEAR_MISS_ALPHA,
-            ),
-            None => "no effect of the catalog helps significantly: the model explains this data as well as it can".to_owned(),
-        },
+        _ => no_effect_verdict(&candidates, &plausible_effects),
     };
     Ok(Diagnosis {
         parts,
@@ -575,6 +566,57 @@ enum SegmentTest {
     /// the segments that hold most of the error gain and the quiet ones,
     /// noise alone, cannot (a delay, seen where the command steps).
     ErrorShare,
+}
+
+/// The verdict when no effect is significant: whether a fit that is not
+/// the effect it names still showed that something is missing, and the
+/// catalog's near miss, if any.
+fn no_effect_verdict(candidates: &[Candidate], plausible_effects: &BTreeSet<String>) -> String {
+    // A fit that clears the test without being the effect it names
+    // says that something is missing all the same, only not
+    // something of the catalog.
+    let missing = candidates
+        .iter()
+        .filter(|c| c.stands_in.is_some())
+        .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
+        .map(|c| {
+            format!(
+                "`{}` lowers the {} validation NRMSE {} ({} = {:.1} against {:.1} over {} segments) without being what it names ({}): something the catalog lacks is missing",
+                c.effect,
+                c.output,
+                before_after(c.validation_nrmse_before, c.validation_nrmse_after),
+                c.statistic_symbol(),
+                c.statistic,
+                c.threshold,
+                c.segments,
+                c.stands_in.as_deref().unwrap_or_default(),
+            )
+        });
+    // A fall the test could not make sure of is worth a user's
+    // knowing: a longer record, or one that excites it more, may.
+    let near = nearest(candidates, plausible_effects).map(|near| {
+        format!(
+            "the nearest, `{}`, lowers the {} validation NRMSE {}, not surely ({} = {:.1} against {:.1} over {} segments; tried alone, at {:.0} %, it would pass): a longer record may tell",
+            near.effect,
+            near.output,
+            before_after(near.validation_nrmse_before, near.validation_nrmse_after),
+            near.statistic_symbol(),
+            near.statistic,
+            near.threshold,
+            near.segments,
+            100.0 * NEAR_MISS_ALPHA,
+        )
+    });
+    match (missing, near) {
+        (Some(missing), Some(near)) => {
+            format!("no effect of the catalog helps significantly, yet {missing}; of the catalog, {near}")
+        }
+        (Some(missing), None) => format!("no effect of the catalog helps significantly, yet {missing}"),
+        (None, Some(near)) => format!("no effect of the catalog helps significantly; {near}"),
+        (None, None) => {
+            "no effect of the catalog helps significantly: the model explains this data as well as it can".to_owned()
+        }
+    }
 }
 
 /// Of the `plausible` effects (fits that are the effect they name) that
@@ -1164,7 +1206,7 @@ mod tests {
     use std::collections::{BTreeMap, BTreeSet};
 
     use super::{
-        before_after, both_exceed, error_share, joint_level, least_fall, nearest, owens_t, paired_t,
+        before_after, both_exceed, error_share, joint_level, least_fall, nearest, no_effect_verdict, owens_t, paired_t,
         readings_on_lattice, reported, signed_rank, Candidate, PairedTest, SegmentTest,
     };
     use statrs::distribution::{ContinuousCDF, Normal};
@@ -1373,6 +1415,7 @@ mod tests {
             effective_segments: 36.0,
             uncertainty: Default::default(),
             read_off_step: None,
+            stands_in: None,
         }
     }
 
@@ -1401,6 +1444,34 @@ mod tests {
         );
         let weak = [turned_down("gravity_load", 0.7, 0.0303, 0.0281)];
         assert!(nearest(&weak, &all).is_none(), "t 0.7 passes nothing alone");
+    }
+
+    /// The same plant: the flexible load damped beyond critical passed the
+    /// error-share test (4.6 against 3.6) as a stand-in.
+    #[test]
+    fn a_stand_in_that_passes_the_test_says_something_outside_the_catalog_is_missing() {
+        let mut stand_in = turned_down("load_flexibility", 4.6, 0.0019, 0.0013);
+        stand_in.stands_in = Some("its coupling is damped beyond critical (ζ = 23.83): nothing rings".to_owned());
+        let near = turned_down("time_delay", 2.7, 0.0266, 0.0232);
+        let plausible: BTreeSet<String> = ["time_delay".to_owned()].into();
+        let both = no_effect_verdict(&[stand_in.clone(), near.clone()], &plausible);
+        assert!(
+            both.starts_with("no effect of the catalog helps significantly, yet `load_flexibility`"),
+            "{both}"
+        );
+        assert!(
+            both.contains("something the catalog lacks is missing") && both.contains("`time_delay`"),
+            "{both}"
+        );
+        let alone = no_effect_verdict(&[stand_in], &BTreeSet::new());
+        assert!(alone.contains("ζ = 23.83") && !alone.contains("nearest"), "{alone}");
+        assert!(no_effect_verdict(&[near], &plausible)
+            .starts_with("no effect of the catalog helps significantly; the nearest"));
+        let nothing = no_effect_verdict(&[turned_down("deadzone", 0.0, 0.0266, 0.0266)], &plausible);
+        assert!(
+            nothing.ends_with("the model explains this data as well as it can"),
+            "{nothing}"
+        );
     }
 
     #[test]
