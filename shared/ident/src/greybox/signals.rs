@@ -41,8 +41,8 @@ pub struct Signals {
     /// The velocity's slope by the same local line, rad/s².
     pub acceleration: Vec<f64>,
     /// The direction of the angle's last motion at or before each sample
-    /// (by the smoothed velocity): +1, −1, or 0 before the first. Where a
-    /// load sits in a play comes from it.
+    /// (by the smoothed velocity): +1, −1, or 0 before the first. The
+    /// mechanical part reads where a load sits in a play from it.
     pub last_motion: Vec<f64>,
     /// Whether the record has the valve command and the chamber pressures.
     pub has_command: bool,
