@@ -494,7 +494,7 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
         comparison.validation_end_s,
         escape(&comparison.method)
     );
-    let _ = write!(html, "<h2>Verdict</h2><p><b>{}</b></p>", escape(&diagnosis.verdict));
+    let _ = write!(html, "<h2>Verdict</h2><p><b>{}</b></p>", prose(&diagnosis.verdict));
     if !history.is_empty() {
         html += "<h2>The model, step by step</h2>";
         push_figures(&mut html, &history);
@@ -546,7 +546,7 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
             c.validation_nrmse_before,
             c.validation_nrmse_after,
             if c.significant { "yes" } else { "no" },
-            escape(&c.evidence)
+            prose(&c.evidence)
         );
     }
     html += "</table><h2>Plots</h2>";
@@ -568,4 +568,42 @@ fn push_figures(html: &mut String, figures: &[(String, String)]) {
 
 fn escape(text: &str) -> String {
     text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// The tools' plain text as HTML: escaped, and a name between backticks
+/// (an effect, a parameter) set as code, as a terminal reader sees it
+/// quoted. An unpaired backtick stays as it is.
+fn prose(text: &str) -> String {
+    let pieces: Vec<String> = escape(text).split('`').map(str::to_owned).collect();
+    let paired = pieces.len() % 2 == 1;
+    let mut html = String::new();
+    for (i, piece) in pieces.iter().enumerate() {
+        match (i % 2, paired || i + 1 < pieces.len()) {
+            (1, true) => {
+                html += "<code>";
+                html += piece;
+                html += "</code>";
+            }
+            (1, false) => {
+                html.push('`');
+                html += piece;
+            }
+            _ => html += piece,
+        }
+    }
+    html
+}
+
+#[cfg(test)]
+mod tests {
+    use super::prose;
+
+    #[test]
+    fn names_in_backticks_are_set_as_code_and_the_rest_escaped() {
+        assert_eq!(
+            prose("add `time_delay`: p < 0.01 & `x`"),
+            "add <code>time_delay</code>: p &lt; 0.01 &amp; <code>x</code>"
+        );
+        assert_eq!(prose("a lone ` stays"), "a lone ` stays");
+    }
 }
