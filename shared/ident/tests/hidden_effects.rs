@@ -9,7 +9,7 @@
 mod common;
 
 use hydractl_config::Config;
-use hydractl_ident::greybox::{diagnose, FitOptions, Signals};
+use hydractl_ident::greybox::{diagnose, Candidate, FitOptions, Signals};
 use hydractl_ident::Dataset;
 use hydractl_plant::Effect;
 use hydractl_sim::simulate;
@@ -37,7 +37,9 @@ fn closed_loop_data(effect: Option<&str>, seed: u64) -> Signals {
     Signals::from_dataset(&data).expect("valid signals")
 }
 
-fn hidden(spec: &str, seed: u64) {
+/// Asserts that the hidden effect is named first, significant, and fitted
+/// right; returns that candidate for a test that asks more of it.
+fn hidden(spec: &str, seed: u64) -> Candidate {
     let truth = Effect::parse(spec).expect("valid effect");
     let kind = truth.kind();
     let signals = closed_loop_data(Some(spec), seed);
@@ -71,6 +73,7 @@ fn hidden(spec: &str, seed: u64) {
         );
     }
     assert!(!first.evidence.is_empty());
+    first.clone()
 }
 
 #[test]
@@ -125,7 +128,17 @@ fn gravity_load_smaller_than_default() {
 
 #[test]
 fn load_flexibility() {
-    hidden("load_flexibility", 3);
+    let first = hidden("load_flexibility", 3);
+    // The default load rings at 36.5 rad/s. The evidence names a frequency
+    // only where the data fixes one, and says so where it does not.
+    let evidence = &first.evidence;
+    match evidence.split("rings at ").nth(1) {
+        Some(rest) => {
+            let mode: f64 = rest.split(' ').next().and_then(|m| m.parse().ok()).expect("a number");
+            assert!((mode - 36.5).abs() <= 0.25 * 36.5, "{evidence}");
+        }
+        None => assert!(evidence.contains("nor the frequency it rings at"), "{evidence}"),
+    }
 }
 
 #[test]

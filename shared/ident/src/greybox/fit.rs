@@ -182,12 +182,17 @@ fn effect_knobs(kind: EffectKind) -> Vec<Free> {
 /// for something else. (A secondary parameter at its edge, a Stribeck
 /// velocity the data cannot resolve, says only that it is not identified.)
 pub(crate) fn at_edge(kind: EffectKind, params: &BTreeMap<String, f64>) -> Option<String> {
-    let main = kind.main_param()?;
+    param_at_edge(kind, kind.main_param()?, params)
+}
+
+/// Whether the effect's parameter `key` sits at an edge of the range the
+/// fit allows it, in words.
+pub(crate) fn param_at_edge(kind: EffectKind, key: &str, params: &BTreeMap<String, f64>) -> Option<String> {
     effect_knobs(kind).into_iter().find_map(|free| {
-        let Knob::Effect(_, key) = free.knob else {
+        let Knob::Effect(_, knob_key) = free.knob else {
             return None;
         };
-        if key != main {
+        if knob_key != key {
             return None;
         }
         let value = *params.get(key)?;
