@@ -106,6 +106,22 @@ pub struct Candidate {
 }
 
 impl Candidate {
+    /// How near its test came to passing (see [`share_of_threshold`]).
+    fn share_of_threshold(&self) -> f64 {
+        share_of_threshold(self.statistic, self.threshold)
+    }
+
+    /// Its test's figures for a verdict: "t = 2.7 against 3.6 over 36 segments".
+    fn test_figures(&self) -> String {
+        format!(
+            "{} = {:.1} against {:.1} over {} segments",
+            self.statistic_symbol(),
+            self.statistic,
+            self.threshold,
+            self.segments
+        )
+    }
+
     /// The symbol of the statistic that decided, for a verdict.
     fn statistic_symbol(&self) -> &'static str {
         if self.test == SegmentTest::SignedRank.name() {
@@ -578,17 +594,14 @@ fn no_effect_verdict(candidates: &[Candidate], plausible_effects: &BTreeSet<Stri
     let missing = candidates
         .iter()
         .filter(|c| c.stands_in.is_some())
-        .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
+        .max_by(|a, b| a.share_of_threshold().total_cmp(&b.share_of_threshold()))
         .map(|c| {
             format!(
-                "`{}` lowers the {} validation NRMSE {} ({} = {:.1} against {:.1} over {} segments) without being what it names ({}): something the catalog lacks is missing",
+                "`{}` lowers the {} validation NRMSE {} ({}) without being what it names ({}): something the catalog lacks is missing",
                 c.effect,
                 c.output,
                 before_after(c.validation_nrmse_before, c.validation_nrmse_after),
-                c.statistic_symbol(),
-                c.statistic,
-                c.threshold,
-                c.segments,
+                c.test_figures(),
                 c.stands_in.as_deref().unwrap_or_default(),
             )
         });
@@ -596,14 +609,11 @@ fn no_effect_verdict(candidates: &[Candidate], plausible_effects: &BTreeSet<Stri
     // knowing: a longer record, or one that excites it more, may.
     let near = nearest(candidates, plausible_effects).map(|near| {
         format!(
-            "the nearest, `{}`, lowers the {} validation NRMSE {}, not surely ({} = {:.1} against {:.1} over {} segments; tried alone, at {:.0} %, it would pass): a longer record may tell",
+            "the nearest, `{}`, lowers the {} validation NRMSE {}, not surely ({}; tried alone, at {:.0} %, it would pass): a longer record may tell",
             near.effect,
             near.output,
             before_after(near.validation_nrmse_before, near.validation_nrmse_after),
-            near.statistic_symbol(),
-            near.statistic,
-            near.threshold,
-            near.segments,
+            near.test_figures(),
             100.0 * NEAR_MISS_ALPHA,
         )
     });
@@ -640,7 +650,7 @@ fn nearest<'a>(candidates: &'a [Candidate], plausible: &BTreeSet<String>) -> Opt
                 && c.statistic < c.threshold
                 && c.validation_nrmse_after < c.validation_nrmse_before
         })
-        .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
+        .max_by(|a, b| a.share_of_threshold().total_cmp(&b.share_of_threshold()))
 }
 
 /// A one-sided paired test of the squared error, segment by segment.
@@ -668,15 +678,20 @@ impl PairedTest {
         self.statistic > self.threshold
     }
 
-    /// How near the test came to passing: its statistic over its
-    /// threshold, the same measure for a t and a z.
+    /// How near the test came to passing (see [`share_of_threshold`]).
     fn share_of_threshold(&self) -> f64 {
-        let share = self.statistic / self.threshold;
-        if share.is_nan() {
-            f64::NEG_INFINITY
-        } else {
-            share
-        }
+        share_of_threshold(self.statistic, self.threshold)
+    }
+}
+
+/// How near a test came to passing: its statistic over its threshold, the
+/// same measure for a t and a z (least where undefined).
+fn share_of_threshold(statistic: f64, threshold: f64) -> f64 {
+    let share = statistic / threshold;
+    if share.is_nan() {
+        f64::NEG_INFINITY
+    } else {
+        share
     }
 }
 

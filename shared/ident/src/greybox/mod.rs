@@ -632,7 +632,9 @@ pub fn predict_mechanical(
         // last motion (a load that stopped stays where it was pushed). A
         // model with a play chooses nothing on the segment it is judged on
         // that the baseline may not.
-        let play = effects.backlash.map(|b| 0.5 * b.width * signals.last_motion[start]);
+        let play = effects
+            .backlash
+            .map_or(0.0, |b| 0.5 * b.width * signals.last_motion[start]);
         let mut initial_angle = signals.theta_smooth[start];
         let mut initial_velocity = signals.velocity[start];
         if let Some(friction) = effects.coulomb_friction {
@@ -650,7 +652,7 @@ pub fn predict_mechanical(
         // Simulates the segment from an initial state (and a position in the
         // play) into `shaft`, and keeps it in `best` when it fits better.
         let mut try_start = |initial: (f64, f64), shaft: &mut Vec<f64>| {
-            simulate_segment(&model, signals, segment.clone(), initial, play.unwrap_or(0.0), shaft);
+            simulate_segment(&model, signals, segment.clone(), initial, play, shaft);
             keep_if_better(effects, staircase.as_ref(), measured, shaft, &mut best, &mut best_error);
         };
         // Without a mechanical effect the correction is exact: two passes
