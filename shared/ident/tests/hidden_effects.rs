@@ -15,6 +15,11 @@ use hydractl_plant::Effect;
 use hydractl_sim::simulate;
 
 fn closed_loop_data(effect: Option<&str>, seed: u64) -> Signals {
+    closed_loop_data_of(effect, seed, &["t", "u", "p_a", "p_b", "theta"])
+}
+
+/// The same run, with only the named columns recorded.
+fn closed_loop_data_of(effect: Option<&str>, seed: u64, columns: &[&str]) -> Signals {
     let mut config = Config::default_sim().expect("built-in config");
     config.simulation.seed = seed;
     let effects: Vec<Effect> = effect
@@ -24,15 +29,16 @@ fn closed_loop_data(effect: Option<&str>, seed: u64) -> Signals {
     let run = simulate(&config, &effects, 60.0).expect("simulates");
     let r = &run.records;
     let column = |f: fn(&hydractl_sim::Record) -> f64| r.iter().map(f).collect::<Vec<f64>>();
+    let all = vec![
+        ("t", column(|x| x.t)),
+        ("u", column(|x| x.u)),
+        ("p_a", column(|x| x.p_a)),
+        ("p_b", column(|x| x.p_b)),
+        ("theta", column(|x| x.theta)),
+    ];
     let data = Dataset::from_columns(
         "simulated",
-        vec![
-            ("t", column(|x| x.t)),
-            ("u", column(|x| x.u)),
-            ("p_a", column(|x| x.p_a)),
-            ("p_b", column(|x| x.p_b)),
-            ("theta", column(|x| x.theta)),
-        ],
+        all.into_iter().filter(|(name, _)| columns.contains(name)).collect(),
     );
     Signals::from_dataset(&data).expect("valid signals")
 }
@@ -89,6 +95,24 @@ fn no_hidden_effect_nothing_significant() {
         "{}",
         diagnosis.verdict
     );
+}
+
+/// The README's tour without pressures: on a dead-zone's record the
+/// baseline's valve fits fast and overdamped (913 rad/s, ζ = 4.9), and every
+/// start of four candidates diverged where the whole path's step was 1 ms.
+#[test]
+fn without_pressures_a_deadzone_is_named_behind_a_fast_fitted_valve() {
+    let signals = closed_loop_data_of(Some("deadzone"), 1, &["t", "u", "theta"]);
+    let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
+    let failed: Vec<&str> = diagnosis
+        .not_judged
+        .iter()
+        .filter(|n| n.reason.contains("fit failed"))
+        .map(|n| n.effect.as_str())
+        .collect();
+    assert!(failed.is_empty(), "{failed:?}");
+    let first = &diagnosis.candidates[0];
+    assert!(first.effect == "deadzone" && first.significant, "{}", diagnosis.verdict);
 }
 
 #[test]

@@ -25,6 +25,14 @@ pub fn spool_rates(params: &PlantParams, effects: &Effects, spool: f64, spool_ra
     (rate, acceleration)
 }
 
+/// The spool's fastest mode, 1/s: the larger root of s² + 2ζω s + ω² in
+/// size, ω (ζ + √(ζ² − 1)) when overdamped, ω when not. An explicit
+/// integration step must stay well within its inverse.
+pub fn spool_fastest_rate(params: &PlantParams) -> f64 {
+    let (wn, zeta) = (params.valve_natural_frequency, params.valve_damping);
+    wn * (zeta + (zeta * zeta - 1.0).max(0.0).sqrt())
+}
+
 /// Holds the spool within its travel limit after an integration step.
 pub fn limit_spool(effects: &Effects, spool: &mut f64, spool_rate: &mut f64) {
     if let Some(saturation) = effects.saturation {

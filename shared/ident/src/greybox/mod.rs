@@ -293,6 +293,14 @@ pub(crate) fn predict_part_into(
 /// 20 substeps per sample).
 const MAX_WHOLE_STEP_S: f64 = 1e-3;
 
+/// |λ| h for the whole path's fastest mode, within RK4's stability limit
+/// (2.8) with room for the modes it couples to.
+const RK4_WHOLE_STEP_RATE: f64 = 2.0;
+
+/// Substeps per sample at most: a valve faster than this resolves is left
+/// to diverge, and the fit turns that start down.
+const MAX_WHOLE_SUBSTEPS: usize = 64;
+
 /// Command → angle, segment by segment. Each segment starts from a state
 /// estimated from the measurement alone, the same for every model: the
 /// smoothed angle and velocity, and the load pressure that the smoothed
@@ -306,7 +314,13 @@ pub fn predict_whole(
     range: Range<usize>,
     out: &mut Prediction,
 ) {
-    let substeps = ((signals.dt / MAX_WHOLE_STEP_S).ceil() as usize).max(1);
+    // The exact step leaves to RK4 every step that crosses a dead band's
+    // edge or meets a nonlinear effect, and RK4 holds only while |λ| h stays
+    // under about 2.8: a fitted valve may be fast and overdamped (913 rad/s
+    // at ζ = 4.9, a mode at 8900/s, on a dead-zone's record without
+    // pressures), and at 1 ms every such step diverged.
+    let stable_step = RK4_WHOLE_STEP_RATE / hydraulics::spool_fastest_rate(plant);
+    let substeps = ((signals.dt / MAX_WHOLE_STEP_S.min(stable_step)).ceil() as usize).clamp(1, MAX_WHOLE_SUBSTEPS);
     // The delay is applied here, interpolated between samples, so that the
     // fit sees it move continuously; the plant gets the delayed command.
     let mut undelayed = *effects;
