@@ -219,9 +219,9 @@ impl Started {
         }
         // The valve, the last line of safety, one step above the chain: its
         // own clock runs even when a stage above it spins at the loop's
-        // priority (SAFETY.md), at the price of taking the CPU in the
-        // chain's middle at every reading, for the few microseconds its
-        // guard needs.
+        // priority (SAFETY.md). Readings do not wake it, so it never takes
+        // the CPU in the chain's middle: only a command, or its clock when
+        // a command is overdue.
         let priority = self.config.timing.realtime_priority.map(|p| match self.name.as_str() {
             "valve" => (p + 1).min(99),
             _ => p,

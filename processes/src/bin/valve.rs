@@ -4,19 +4,17 @@
 //! the loop starts and on every way out of it: a signal, an error, a
 //! panic (the drop of [`Actuator`]).
 
+use std::cell::Cell;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use hydractl_bus::{clock, run_loop, Inlet, Outlet, Wake};
+use hydractl_bus::{clock, run_until, Inlet, Input, Outlet, Reader, Wake};
 use hydractl_processes::can_valve::CanValve;
 use hydractl_samples::{fault, service, source, valid, SensorSample, TorqueSample, ValveSample};
 use hydractl_stages::{ValveFaults, ValveStage};
 
 /// Readings whose source is remembered: more than the guard's age.
 const SOURCES: usize = 16;
-
-const COMMAND: usize = 0;
-const SENSOR: usize = 1;
 
 /// The valve the command drives.
 enum Device {
@@ -133,12 +131,69 @@ impl Drop for Actuator {
     }
 }
 
+/// The valve's own clock: when it looks at the readings without being
+/// woken by a command. Commands wake the valve; readings do not (a wake at
+/// every reading would take the loop's CPU in the chain's middle, the
+/// valve being one priority above it). A reading matters to the guard only
+/// once no command answers it in time, so the valve looks when the reading
+/// that trips the stale guard is due, and every period after that until a
+/// command comes; and at least every `tick`, for the silence guard and a
+/// CAN valve's repeated set point.
+#[derive(Clone, Copy)]
+struct ValveClock {
+    period_ns: u64,
+    /// From the reading the newest command answered to the reading that
+    /// trips the guard (`max_age_periods` + 1 periods on), and a quarter
+    /// period more for it to pass the sensor stage.
+    overdue_after_ns: u64,
+    tick_ns: u64,
+    /// The next look at the readings, ns on the monotonic clock.
+    look_at_ns: u64,
+    last_wake_ns: u64,
+}
+
+impl ValveClock {
+    fn new(config: &hydractl_config::Config, tick: Duration) -> Self {
+        let period_ns = (config.timing.control_period() * 1e9).round() as u64;
+        let now = clock::now_ns();
+        let tick_ns = tick.as_nanos() as u64;
+        Self {
+            period_ns,
+            overdue_after_ns: (config.control.valve_guard.max_age_periods + 1) * period_ns + period_ns / 4,
+            tick_ns,
+            look_at_ns: now + tick_ns,
+            last_wake_ns: now,
+        }
+    }
+
+    /// A command answering the reading taken at `reading_ns` was driven.
+    fn answered(&mut self, reading_ns: u64) {
+        self.look_at_ns = reading_ns.saturating_add(self.overdue_after_ns);
+    }
+
+    /// The valve woke; after a look, the next is a period on unless a
+    /// command moves it.
+    fn woke(&mut self, looked: bool) {
+        self.last_wake_ns = clock::now_ns();
+        if looked {
+            self.look_at_ns = self.last_wake_ns + self.period_ns;
+        }
+    }
+
+    fn next(&self) -> Instant {
+        let at = self.look_at_ns.min(self.last_wake_ns + self.tick_ns);
+        Instant::now() + Duration::from_nanos(at.saturating_sub(clock::now_ns()))
+    }
+}
+
 fn main() -> Result<()> {
     let started = hydractl_processes::start("valve")?;
     let bus = &started.bus;
     let mut stage = ValveStage::new(&started.config)?;
     let torque: Inlet<TorqueSample> = Inlet::open(bus, service::TORQUE, 4)?;
-    let sensor: Inlet<SensorSample> = Inlet::open(bus, service::SENSOR, 4)?;
+    // Readings are taken when the valve wakes: a few periods' worth at
+    // most, before the first command a tick's.
+    let sensor: Reader<SensorSample> = Reader::open(bus, service::SENSOR, 64)?;
     // Its output once its inputs are open (a fresh plant starts once every
     // stage publishes), and at once neutral, before any input is read.
     let device = match &started.config.can {
@@ -159,60 +214,77 @@ fn main() -> Result<()> {
     };
     actuator.off().context("valve: driving neutral at start")?;
     let silence_timeout = Duration::from_secs_f64(started.config.control.valve_guard.silence_timeout_ms / 1000.0);
+    let tick = silence_timeout / 4;
     // Silence is counted from the last thing the valve drove: with readings
     // coming and commands not, the guard drives neutral reading by reading;
     // with both stopped (a stage spinning above it, the plant gone), this
     // clock does, within the timeout and a tick.
     let mut last_driven = Instant::now();
+    let valve_clock = Cell::new(ValveClock::new(&started.config, tick));
     let mut failure = None;
-    // The tick is the valve's own clock, for when readings stop too.
     started.enter_realtime();
-    let ended = run_loop(
-        &[torque.listener(), sensor.listener()],
-        Some(silence_timeout / 4),
+    let ended = run_until(
+        &[Input::Listener(torque.listener())],
         &started.bus,
+        || Some(valve_clock.get().next()),
         |wake| {
             hydractl_bus::guarded(&mut failure, || {
-                // Every reading counts towards the guard, the one that woke us
-                // and any that arrived with it.
+                let mut timer = valve_clock.get();
+                // Every reading counts towards the guard, in order, before
+                // the command that answers one of them.
                 let mut neutral = None;
                 while let Some(s) = sensor.next()? {
                     actuator.note(s);
                     neutral = stage.on_sensor(s.sensor_seq, s.valid == valid::ALL).or(neutral);
                 }
                 let newest = actuator.newest;
-                let decision = match wake {
-                    Wake::Input(COMMAND) => torque.latest()?.and_then(|t| {
+                let command = match wake {
+                    Wake::Input(_) => torque.latest()?.and_then(|t| {
                         let (command, faults) = stage.on_command(t.sensor_seq, t.command, t.variant)?;
                         Some((t.sensor_seq, t.sensor_time_ns, command, t.command, faults, t.variant))
                     }),
-                    Wake::Input(SENSOR) => neutral.map(|(command, faults)| {
-                        (newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0)
-                    }),
-                    // Before the first reading the loop has not started and the
-                    // valve is neutral anyway: silence means something only after.
-                    Wake::Tick if newest.sensor_time_ns != 0 && last_driven.elapsed() >= silence_timeout => {
-                        let (command, faults) = stage.on_silence();
-                        Some((newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0))
-                    }
-                    _ => None,
+                    Wake::Tick => None,
                 };
-                if decision.is_none() && wake == Wake::Tick {
-                    actuator.refresh(silence_timeout / 4)?;
+                let decision = command.or_else(|| {
+                    neutral
+                        .map(|(command, faults)| {
+                            (newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0)
+                        })
+                        // Before the first reading the loop has not started and
+                        // the valve is neutral anyway: silence means something
+                        // only after.
+                        .or_else(|| {
+                            (wake == Wake::Tick
+                                && newest.sensor_time_ns != 0
+                                && last_driven.elapsed() >= silence_timeout)
+                                .then(|| {
+                                    let (command, faults) = stage.on_silence();
+                                    (newest.sensor_seq, newest.sensor_time_ns, command, f64::NAN, faults, 0)
+                                })
+                        })
+                });
+                timer.woke(wake == Wake::Tick);
+                match decision {
+                    None if wake == Wake::Tick => actuator.refresh(tick)?,
+                    None => {}
+                    Some((seq, sensor_time_ns, command, requested, faults, variant)) => {
+                        // Silent again after another timeout: said again.
+                        last_driven = Instant::now();
+                        if faults == ValveFaults::default() {
+                            timer.answered(sensor_time_ns);
+                        }
+                        actuator.drive(ValveSample {
+                            sensor_seq: seq,
+                            sensor_time_ns,
+                            stage_time_ns: clock::now_ns(),
+                            command,
+                            requested,
+                            faults: encode(faults),
+                            variant,
+                        })?;
+                    }
                 }
-                if let Some((seq, sensor_time_ns, command, requested, faults, variant)) = decision {
-                    // Silent again after another timeout: said again.
-                    last_driven = Instant::now();
-                    actuator.drive(ValveSample {
-                        sensor_seq: seq,
-                        sensor_time_ns,
-                        stage_time_ns: clock::now_ns(),
-                        command,
-                        requested,
-                        faults: encode(faults),
-                        variant,
-                    })?;
-                }
+                valve_clock.set(timer);
                 Ok(())
             })
         },
