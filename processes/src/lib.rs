@@ -238,6 +238,10 @@ pub fn start(name: &str) -> Result<Started> {
     // Die with the parent (the supervisor, or `hydractl run` for the
     // supervisor): a killed parent must not leave the loop running.
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).context("setting the parent-death signal")?;
+    // A child inherits its parent's signal mask, and the supervisor starts
+    // a restart from inside its loop, where SIGINT and SIGTERM wait blocked:
+    // unblocked here, every process hears them whoever started it.
+    hydractl_bus::unblock_termination_signals().context("unblocking SIGINT and SIGTERM")?;
     let config = Config::load_or_default(args.config.as_deref())?;
     let filter = logging::filter(None, &config.log).map_err(anyhow::Error::msg)?;
     let log_span = logging::init(name, filter, &config.log);

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use hydractl_bus::can::{frame_sample, sample_frame};
-use hydractl_bus::{clock, run_until, Inlet, Input, Outlet};
+use hydractl_bus::{clock, run_until, Inlet, Outlet};
 use hydractl_can::wire::Wire;
 use hydractl_samples::{service, CanFrameSample};
 
@@ -33,7 +33,7 @@ fn main() -> Result<()> {
     let mut delivered = 0u64;
     let mut failure = None;
     started.enter_realtime();
-    let inputs = [Input::Listener(tx.listener())];
+    let inputs = [tx.input()];
     let next_event = |wire: &Wire| {
         wire.next_event_ns().map(|at| {
             let now = clock::now_ns();

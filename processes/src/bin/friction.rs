@@ -18,7 +18,7 @@ fn main() -> Result<()> {
     let (mut reference_velocity, mut valve_command) = (0.0, 0.0);
     let mut failure = None;
     started.enter_realtime();
-    run_single(sensor.listener(), &started.bus, || {
+    run_single(sensor.input(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             if let Some(p) = position.latest()? {
                 reference_velocity = p.reference_velocity;

@@ -41,7 +41,7 @@ fn main() -> Result<()> {
     let mut latest_sensor = SensorSample::default();
     let mut failure = None;
     started.enter_realtime();
-    run_single(friction.listener(), &started.bus, || {
+    run_single(friction.input(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;

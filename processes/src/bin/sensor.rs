@@ -15,7 +15,7 @@ fn main() -> Result<()> {
     let out: Outlet<SensorSample> = Outlet::open(&started.bus, service::SENSOR)?;
     let mut failure = None;
     started.enter_realtime();
-    run_single(device.listener(), &started.bus, || {
+    run_single(device.input(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             let Some(reading) = device.try_read()? else {
                 return Ok(());

@@ -38,7 +38,7 @@ fn main() -> Result<()> {
     let (mut latest_sensor, mut latest_friction) = (SensorSample::default(), FrictionSample::default());
     let mut failure = None;
     started.enter_realtime();
-    run_single(position.listener(), &started.bus, || {
+    run_single(position.input(), &started.bus, || {
         hydractl_bus::guarded(&mut failure, || {
             if let Some(s) = sensor.latest()? {
                 latest_sensor = s;

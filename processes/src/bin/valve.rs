@@ -8,7 +8,7 @@ use std::cell::Cell;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use hydractl_bus::{clock, run_until, Inlet, Input, Outlet, Reader, Wake};
+use hydractl_bus::{clock, run_until, Inlet, Outlet, Reader, Wake};
 use hydractl_processes::can_valve::CanValve;
 use hydractl_samples::{fault, service, source, valid, SensorSample, TorqueSample, ValveSample};
 use hydractl_stages::{ValveFaults, ValveStage};
@@ -224,7 +224,7 @@ fn main() -> Result<()> {
     let mut failure = None;
     started.enter_realtime();
     let ended = run_until(
-        &[Input::Listener(torque.listener())],
+        &[torque.input()],
         &started.bus,
         || Some(valve_clock.get().next()),
         |wake| {

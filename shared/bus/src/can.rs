@@ -262,7 +262,7 @@ impl CanPort for VirtualCanPort {
     }
 
     fn input(&self) -> Input<'_> {
-        Input::Listener(self.rx.listener())
+        self.rx.input()
     }
 
     fn error_frames(&self) -> u64 {

@@ -5,7 +5,7 @@
 
 use hydractl_samples::{service, PlantReading};
 
-use crate::{Bus, BusError, Inlet};
+use crate::{Bus, BusError, Inlet, Input};
 
 /// One reading from the machine's sensors.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -21,14 +21,13 @@ pub struct DeviceReading {
     pub source: u32,
 }
 
-/// A sensor bus. The process sleeps on [`SensorDevice::listener`] (a CAN
-/// socket will offer its file descriptor the same way) and then takes the
-/// newest reading.
+/// A sensor bus. The process sleeps on [`SensorDevice::input`] and then
+/// takes the newest reading.
 pub trait SensorDevice {
     /// The newest reading not yet taken, if any.
     fn try_read(&self) -> Result<Option<DeviceReading>, BusError>;
     /// What to wait on for new readings.
-    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service>;
+    fn input(&self) -> Input<'_>;
 }
 
 pub trait ValveDevice {
@@ -54,8 +53,8 @@ impl SimulatedSensors {
 }
 
 impl SensorDevice for SimulatedSensors {
-    fn listener(&self) -> &iceoryx2::port::listener::Listener<iceoryx2::prelude::ipc::Service> {
-        self.readings.listener()
+    fn input(&self) -> Input<'_> {
+        self.readings.input()
     }
 
     fn try_read(&self) -> Result<Option<DeviceReading>, BusError> {

@@ -7,6 +7,7 @@ pub mod can;
 pub mod clock;
 mod command;
 pub mod devices;
+mod doorbell;
 mod outlet;
 pub mod placement;
 mod scope;
@@ -14,9 +15,12 @@ pub mod semaphore_service;
 mod wait;
 
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
-pub use outlet::{Inlet, Outlet, PublisherWatch, Reader, CAN_RX_MAX_BUFFER};
+pub use doorbell::{Doorbell, Rung};
+pub use outlet::{Inlet, Outlet, PublisherWatch, Reader, Wakeup, CAN_RX_MAX_BUFFER};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
-pub use wait::{guarded, run_loop, run_single, run_until, wait_input, Flow, Input, LoopExit, Wake};
+pub use wait::{
+    guarded, run_loop, run_single, run_until, unblock_termination_signals, wait_input, Flow, Input, LoopExit, Wake,
+};
 
 /// Names the folder of the process binaries, over where they are looked
 /// for otherwise ([`process_dir`]).
@@ -85,6 +89,8 @@ pub enum BusError {
     InvalidPrefix(String),
     #[error("cannot remove {path}: {source}")]
     Cleanup { path: String, source: std::io::Error },
+    #[error("cannot open the doorbell {path}: {source}")]
+    Doorbell { path: String, source: std::io::Error },
     #[error(
         "no permission for {path}, owned by {owner}: another user's run left it; run as {owner}, remove it as root, or set HYDRACTL_IPC_PREFIX to another prefix"
     )]

@@ -7,7 +7,7 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 
-use crate::{Bus, BusError};
+use crate::{Bus, BusError, Doorbell, Input};
 
 /// The same QoS for every opener, so that creating and opening agree.
 /// Safe overflow (iceoryx2's default) means a slow reader loses its oldest
@@ -50,16 +50,16 @@ fn max_buffer(name: &str) -> usize {
     }
 }
 
-fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
-    bus: &Bus,
-    name: &str,
-) -> Result<(DataService<T>, EventService), BusError> {
+fn open_data<T: ZeroCopySend + Debug + Copy + 'static>(bus: &Bus, name: &str) -> Result<DataService<T>, BusError> {
     let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
-    let data = data_service::<T>(bus, &service_name)
+    data_service::<T>(bus, &service_name)
         .open_or_create()
-        .map_err(|e| BusError::ipc(format!("opening {name}"), e))?;
-    let event = bus
-        .node()
+        .map_err(|e| BusError::ipc(format!("opening {name}"), e))
+}
+
+fn open_event(bus: &Bus, name: &str) -> Result<EventService, BusError> {
+    let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
+    bus.node()
         .service_builder(&service_name)
         .event()
         .max_nodes(MAX_NODES + 4)
@@ -68,8 +68,30 @@ fn open_service<T: ZeroCopySend + Debug + Copy + 'static>(
         // 2 µs per hop.
         .event_id_max_value(0)
         .open_or_create()
-        .map_err(|e| BusError::ipc(format!("opening event {name}"), e))?;
-    Ok((data, event))
+        .map_err(|e| BusError::ipc(format!("opening event {name}"), e))
+}
+
+/// How a sample wakes whoever waits for it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wakeup {
+    /// An iceoryx2 event: a datagram on a unix socket, which `ppoll` can
+    /// wait on beside other inputs.
+    Event,
+    /// The service's [`Doorbell`], a futex: the fastest hop, for a stage
+    /// that waits on that one input.
+    Doorbell,
+}
+
+impl Wakeup {
+    /// The loop's services ring doorbells; every other service notifies
+    /// an event ([`hydractl_samples::service::rings_doorbell`]).
+    pub fn of(service: &str) -> Self {
+        if hydractl_samples::service::rings_doorbell(service) {
+            Self::Doorbell
+        } else {
+            Self::Event
+        }
+    }
 }
 
 /// Counts the publishers of a service without adding a port and without
@@ -122,28 +144,45 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> PublisherWatch<T> {
     }
 }
 
-/// Publishes samples of one service and wakes its listeners.
+/// What an [`Outlet`] wakes its readers with.
+// One per port, made at start: the event's size is no cost.
+#[allow(clippy::large_enum_variant)]
+enum Waker {
+    Event(Notifier<ipc::Service>),
+    Doorbell(Doorbell),
+}
+
+/// Publishes samples of one service and wakes its readers.
 pub struct Outlet<T: ZeroCopySend + Debug + Copy + 'static> {
     name: String,
     publisher: Publisher<ipc::Service, T, ()>,
-    notifier: Notifier<ipc::Service>,
+    waker: Waker,
 }
 
 impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
+    /// Opens the service `name`, waking its readers as [`Wakeup::of`] says.
     pub fn open(bus: &Bus, name: &str) -> Result<Self, BusError> {
-        let (data, event) = open_service::<T>(bus, name)?;
-        let publisher = data
+        Self::open_waking(bus, name, Wakeup::of(name))
+    }
+
+    pub fn open_waking(bus: &Bus, name: &str, wakeup: Wakeup) -> Result<Self, BusError> {
+        let publisher = open_data::<T>(bus, name)?
             .publisher_builder()
             .create()
             .map_err(|e| BusError::ipc(format!("publisher on {name}"), e))?;
-        let notifier = event
-            .notifier_builder()
-            .create()
-            .map_err(|e| BusError::ipc(format!("notifier on {name}"), e))?;
+        let waker = match wakeup {
+            Wakeup::Event => Waker::Event(
+                open_event(bus, name)?
+                    .notifier_builder()
+                    .create()
+                    .map_err(|e| BusError::ipc(format!("notifier on {name}"), e))?,
+            ),
+            Wakeup::Doorbell => Waker::Doorbell(Doorbell::open(bus.scope(), name)?),
+        };
         Ok(Self {
             name: name.to_owned(),
             publisher,
-            notifier,
+            waker,
         })
     }
 
@@ -161,9 +200,14 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Outlet<T> {
             .write_payload(value)
             .send()
             .map_err(|e| BusError::ipc(format!("send on {}", self.name), e))?;
-        self.notifier
-            .notify()
-            .map_err(|e| BusError::ipc(format!("notify on {}", self.name), e))?;
+        match &self.waker {
+            Waker::Event(notifier) => {
+                notifier
+                    .notify()
+                    .map_err(|e| BusError::ipc(format!("notify on {}", self.name), e))?;
+            }
+            Waker::Doorbell(bell) => bell.ring(),
+        }
         Ok(())
     }
 }
@@ -181,8 +225,7 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
     /// wants the newest, more for a monitor that wants every one, at most
     /// 256 ([`CAN_RX_MAX_BUFFER`] on a CAN bus's delivered frames).
     pub fn open(bus: &Bus, name: &str, buffer: usize) -> Result<Self, BusError> {
-        let (data, _) = open_service::<T>(bus, name)?;
-        let subscriber = data
+        let subscriber = open_data::<T>(bus, name)?
             .subscriber_builder()
             .buffer_size(buffer.clamp(1, max_buffer(name)))
             .create()
@@ -243,30 +286,52 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Reader<T> {
     }
 }
 
+/// What an [`Inlet`] sleeps on.
+// One per port, made at start: the listener's size is no cost.
+#[allow(clippy::large_enum_variant)]
+enum Wait {
+    Event(Listener<ipc::Service>),
+    Doorbell(Doorbell),
+}
+
 /// Receives samples of one service and wakes its process: a [`Reader`] with
-/// a listener for [`crate::run_loop`] or [`crate::run_single`].
+/// what to sleep on, for [`crate::run_loop`], [`crate::run_until`] or
+/// [`crate::run_single`].
 pub struct Inlet<T: ZeroCopySend + Debug + Copy + 'static> {
     reader: Reader<T>,
-    listener: Listener<ipc::Service>,
+    wait: Wait,
 }
 
 impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
+    /// Opens the service `name`, woken as [`Wakeup::of`] says.
     pub fn open(bus: &Bus, name: &str, buffer: usize) -> Result<Self, BusError> {
+        Self::open_waking(bus, name, buffer, Wakeup::of(name))
+    }
+
+    pub fn open_waking(bus: &Bus, name: &str, buffer: usize, wakeup: Wakeup) -> Result<Self, BusError> {
         let reader = Reader::open(bus, name, buffer)?;
-        let (_, event) = open_service::<T>(bus, name)?;
-        let listener = event
-            .listener_builder()
-            .create()
-            .map_err(|e| BusError::ipc(format!("listener on {name}"), e))?;
-        Ok(Self { reader, listener })
+        let wait = match wakeup {
+            Wakeup::Event => Wait::Event(
+                open_event(bus, name)?
+                    .listener_builder()
+                    .create()
+                    .map_err(|e| BusError::ipc(format!("listener on {name}"), e))?,
+            ),
+            Wakeup::Doorbell => Wait::Doorbell(Doorbell::open(bus.scope(), name)?),
+        };
+        Ok(Self { reader, wait })
     }
 
     pub fn name(&self) -> &str {
         &self.reader.name
     }
 
-    pub fn listener(&self) -> &Listener<ipc::Service> {
-        &self.listener
+    /// What to sleep on for this inlet's samples.
+    pub fn input(&self) -> Input<'_> {
+        match &self.wait {
+            Wait::Event(listener) => Input::Listener(listener),
+            Wait::Doorbell(bell) => Input::Doorbell(bell),
+        }
     }
 
     pub fn next(&self) -> Result<Option<T>, BusError> {
@@ -291,15 +356,21 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> Inlet<T> {
         if timeout < Duration::from_micros(1) {
             return Ok(None);
         }
-        // The listener's own timed wait, not `ppoll` as in `run_loop`: for
-        // the plant, which waits here right after publishing a reading, it
-        // measured faster to the sensor's wake-up (p50 9 against 12–16 µs
-        // over three 10 s runs each), although it makes more system calls.
-        match self.listener.timed_wait(|_| {}, timeout) {
-            // Any signal interrupts the sleep; it is the caller's loop that
-            // decides whether a signal ends the run.
-            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
-            Err(e) => return Err(BusError::ipc(format!("wait on {}", self.name()), e)),
+        match &self.wait {
+            // The listener's own timed wait, not `ppoll` as in `run_loop`:
+            // for the plant, which waits here right after publishing a
+            // reading, it measured faster to the sensor's wake-up, although
+            // it makes more system calls.
+            Wait::Event(listener) => match listener.timed_wait(|_| {}, timeout) {
+                // Any signal interrupts the sleep; it is the caller's loop
+                // that decides whether a signal ends the run.
+                Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+                Err(e) => return Err(BusError::ipc(format!("wait on {}", self.name()), e)),
+            },
+            // A timeout, a ring or a signal: each ends the sleep the same.
+            Wait::Doorbell(bell) => {
+                bell.wait(timeout);
+            }
         }
         self.latest()
     }

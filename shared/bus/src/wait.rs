@@ -3,7 +3,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 
-use crate::BusError;
+use crate::{BusError, Doorbell, Rung};
 
 /// What woke the loop.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -61,12 +61,14 @@ pub fn run_loop(
 }
 
 /// What a loop sleeps on: an iceoryx2 listener (its notifications are
-/// taken before the callback runs) or a socket (a CAN socket; the callback
-/// reads it until it would block).
+/// taken before the callback runs), a socket (a CAN socket; the callback
+/// reads it until it would block), or a doorbell (a futex: the loop's
+/// fastest hop, waited on alone, since no `ppoll` sees it).
 #[derive(Clone, Copy)]
 pub enum Input<'a> {
     Listener(&'a Listener<ipc::Service>),
     Socket(std::os::fd::BorrowedFd<'a>),
+    Doorbell(&'a Doorbell),
 }
 
 /// [`run_loop`] with a deadline instead of a period: `next_deadline` is
@@ -94,16 +96,20 @@ fn wait_loop(
     use nix::sys::signal::{SigSet, SigmaskHow, Signal};
     use nix::sys::time::TimeSpec;
 
+    if let [Input::Doorbell(bell)] = inputs {
+        return doorbell_loop(bell, timer, on_wake);
+    }
     let mut fds: Vec<PollFd> = inputs
         .iter()
-        .map(|input| {
-            let fd = match input {
-                Input::Listener(listener) => listener_fd(listener),
-                Input::Socket(fd) => *fd,
-            };
-            PollFd::new(fd, PollFlags::POLLIN)
+        .map(|input| match input {
+            Input::Listener(listener) => Ok(PollFd::new(listener_fd(listener), PollFlags::POLLIN)),
+            Input::Socket(fd) => Ok(PollFd::new(*fd, PollFlags::POLLIN)),
+            Input::Doorbell(_) => Err(BusError::ipc(
+                "waiting on the inputs",
+                "a doorbell is waited on alone, not beside other inputs",
+            )),
         })
-        .collect();
+        .collect::<Result<_, _>>()?;
     let mut terminating = SigSet::empty();
     terminating.add(Signal::SIGINT);
     terminating.add(Signal::SIGTERM);
@@ -146,7 +152,7 @@ fn wait_loop(
                 Input::Listener(listener) => listener
                     .try_wait(|_| {})
                     .map_err(|e| BusError::ipc("taking an input's notification", e))?,
-                Input::Socket(_) => 1,
+                Input::Socket(_) | Input::Doorbell(_) => 1,
             };
             if notified > 0 && on_wake(Wake::Input(i)) == Flow::Stop {
                 return Ok(LoopExit::Stopped);
@@ -169,6 +175,58 @@ fn wait_loop(
     result
 }
 
+/// The longest a doorbell's wait sleeps without a deadline. A signal ends
+/// a timed futex wait, while an untimed one is restarted under iceoryx2's
+/// `SA_RESTART` handler: every wait is timed, so a SIGTERM is seen at once,
+/// and within this bound if it came between the last look and the wait.
+const LONGEST_DOORBELL_SLEEP: Duration = Duration::from_millis(200);
+
+/// [`wait_loop`] on a doorbell: one futex wait per wake-up, no system call
+/// to look at the signals (iceoryx2's handler sets a flag).
+fn doorbell_loop(
+    bell: &Doorbell,
+    mut timer: impl FnMut(Option<Instant>) -> Option<Instant>,
+    mut on_wake: impl FnMut(Wake) -> Flow,
+) -> Result<LoopExit, BusError> {
+    use iceoryx2_bb_posix::signal::SignalHandler;
+    // A futex wait has no signal mask of its own, as `ppoll` has.
+    unblock_termination_signals()?;
+    let mut deadline = timer(None);
+    loop {
+        if SignalHandler::termination_requested() {
+            return Ok(LoopExit::Signal);
+        }
+        let timeout = deadline.map_or(LONGEST_DOORBELL_SLEEP, |at| {
+            at.saturating_duration_since(Instant::now()).min(LONGEST_DOORBELL_SLEEP)
+        });
+        if bell.wait(timeout) == Rung::Yes && on_wake(Wake::Input(0)) == Flow::Stop {
+            return Ok(LoopExit::Stopped);
+        }
+        if let Some(at) = deadline {
+            let now = Instant::now();
+            if now >= at {
+                if on_wake(Wake::Tick) == Flow::Stop {
+                    return Ok(LoopExit::Stopped);
+                }
+                deadline = timer(Some(now));
+                continue;
+            }
+        }
+        deadline = timer(None);
+    }
+}
+
+/// Lets SIGINT and SIGTERM through to this thread (a process inherits its
+/// parent's mask: the supervisor's loop holds them blocked outside its wait).
+pub fn unblock_termination_signals() -> Result<(), BusError> {
+    use nix::sys::signal::{SigSet, SigmaskHow, Signal};
+    let mut terminating = SigSet::empty();
+    terminating.add(Signal::SIGINT);
+    terminating.add(Signal::SIGTERM);
+    nix::sys::signal::pthread_sigmask(SigmaskHow::SIG_UNBLOCK, Some(&terminating), None)
+        .map_err(|e| BusError::ipc("unblocking SIGINT and SIGTERM", e))
+}
+
 /// Sleeps until `input` has something or `timeout` passes, inside a
 /// loop's cycle (a SYNC's answers, awaited up to their deadline); a
 /// listener's notifications are taken. A signal only ends the wait early:
@@ -180,6 +238,10 @@ pub fn wait_input(input: Input<'_>, timeout: Duration) -> Result<(), BusError> {
     let fd = match input {
         Input::Listener(listener) => listener_fd(listener),
         Input::Socket(fd) => fd,
+        Input::Doorbell(bell) => {
+            bell.wait(timeout);
+            return Ok(());
+        }
     };
     let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
     match ppoll(&mut fds, Some(TimeSpec::from_duration(timeout)), None) {
@@ -219,9 +281,9 @@ fn listener_fd(listener: &Listener<ipc::Service>) -> std::os::fd::BorrowedFd<'_>
 
 /// The loop of a stage with one input and no tick.
 pub fn run_single(
-    listener: &Listener<ipc::Service>,
+    input: Input<'_>,
     bus: &crate::Bus,
     mut on_input: impl FnMut() -> Flow,
 ) -> Result<LoopExit, BusError> {
-    run_loop(&[listener], None, bus, |_| on_input())
+    wait_loop(&[input], bus, |_| None, |_| on_input())
 }

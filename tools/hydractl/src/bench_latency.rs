@@ -17,7 +17,7 @@ use anyhow::{bail, Context, Result};
 use hydractl_bus::semaphore_service::{
     self, SemaphoreInlet, SemaphoreOutlet, SemaphoreReader, SemaphoreWaker, MAX_OBSERVERS,
 };
-use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, Reader, RunScope, PREFIX_ENV};
+use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, Reader, RunScope, Wakeup, PREFIX_ENV};
 use hydractl_config::Config;
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
@@ -28,7 +28,11 @@ use hydractl_stages::{
 use crate::slowest::Slowest;
 
 const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
-const TRANSPORTS: [&str; 4] = ["iceoryx2", "iceoryx2-sem", "udp", "calls"];
+/// `iceoryx2` is the live stack's: samples in shared memory, each hop woken
+/// by its service's doorbell (a futex); `iceoryx2-events` wakes each hop
+/// with iceoryx2's own events (a datagram on a unix socket, `ppoll`);
+/// `iceoryx2-sem` with iceoryx2's semaphore events.
+const TRANSPORTS: [&str; 5] = ["iceoryx2", "iceoryx2-events", "iceoryx2-sem", "udp", "calls"];
 const SERVICES: [&str; 6] = [
     "hydractl/bench/0",
     "hydractl/bench/1",
@@ -47,8 +51,9 @@ pub struct LatencyArgs {
     /// duration, so that drifting machine noise falls on all alike.
     #[arg(long, default_value_t = 5)]
     rounds: usize,
-    /// Run only this transport: iceoryx2, iceoryx2-sem (iceoryx2 with
-    /// semaphore events), udp or calls.
+    /// Run only this transport: iceoryx2 (as the live stack: doorbells),
+    /// iceoryx2-events (iceoryx2's unix-datagram events), iceoryx2-sem
+    /// (iceoryx2's semaphore events), udp or calls.
     #[arg(long)]
     only: Option<String>,
     /// The config whose stages, CPU, priority and idle latency are
@@ -272,7 +277,16 @@ pub fn bench(args: LatencyArgs) -> Result<()> {
     for _ in 0..rounds {
         for (name, results) in transports.iter().zip(all.iter_mut()) {
             let round = match *name {
-                "iceoryx2" => run_iceoryx2(&config, stage_config, cycles_per_round, args.observers)?,
+                "iceoryx2" => run_iceoryx2(
+                    &config,
+                    stage_config,
+                    cycles_per_round,
+                    args.observers,
+                    Wakeup::Doorbell,
+                )?,
+                "iceoryx2-events" => {
+                    run_iceoryx2(&config, stage_config, cycles_per_round, args.observers, Wakeup::Event)?
+                }
                 "iceoryx2-sem" => run_semaphore(&config, stage_config, cycles_per_round, args.observers)?,
                 "udp" => run_udp(&config, stage_config, cycles_per_round, args.observers)?,
                 _ => run_calls(&config, cycles_per_round)?,
@@ -310,13 +324,13 @@ fn report(
         None => String::new(),
     };
     let mut text = format!(
-        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport in {rounds} rounds taking turns; {observers} observers per service; {placed}{interrupts}, {priority}, {idle}\n\n{:<12} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
+        "bench latency: sensor reading → valve command through 5 stages, {} Hz, {duration} s per transport in {rounds} rounds taking turns; {observers} observers per service; {placed}{interrupts}, {priority}, {idle}\n\n{:<16} {:>9} {:>9} {:>9} {:>9} {:>12}\n",
         timing.control_rate_hz, "transport", "p50 µs", "p99 µs", "p99.9 µs", "max µs", "misses >1ms"
     );
     for r in all.iter_mut() {
         r.total.sort_unstable();
         text += &format!(
-            "{:<12} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>12}\n",
+            "{:<16} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>12}\n",
             r.name,
             quantile_us(&r.total, 0.5),
             quantile_us(&r.total, 0.99),
@@ -327,7 +341,12 @@ fn report(
     }
     let find = |name: &str| all.iter().find(|r| r.name == name);
     text += "\n";
-    for (over, under) in [("iceoryx2", "udp"), ("iceoryx2-sem", "udp"), ("iceoryx2", "calls")] {
+    for (over, under) in [
+        ("iceoryx2", "udp"),
+        ("iceoryx2-events", "udp"),
+        ("iceoryx2-sem", "udp"),
+        ("iceoryx2", "calls"),
+    ] {
         if let (Some(a), Some(b)) = (find(over), find(under)) {
             text += &format!(
                 "{over} / {under}: p50 {:.2}, p99 {:.2}\n",
@@ -346,13 +365,13 @@ fn report(
                 format!("{:.1}/{:.1}", quantile_us(h, 0.5), quantile_us(h, 0.99))
             })
             .collect();
-        text += &format!("{:<12} {}\n", r.name, hops.join("  "));
+        text += &format!("{:<16} {}\n", r.name, hops.join("  "));
     }
     text += "\nslowest cycles, end-to-end = per hop µs:\n";
     for r in all.iter() {
         for (total, hops) in r.slowest.iter() {
             let hops: Vec<String> = hops.iter().map(|h| format!("{:.1}", *h as f64 / 1000.0)).collect();
-            text += &format!("{:<12} {:.1} = {}\n", r.name, *total as f64 / 1000.0, hops.join(" + "));
+            text += &format!("{:<16} {:.1} = {}\n", r.name, *total as f64 / 1000.0, hops.join(" + "));
         }
     }
     crate::emit(&text)
@@ -435,20 +454,30 @@ impl Drop for StageProcesses {
     }
 }
 
-fn run_iceoryx2(config: &Config, stage_config: Option<&Path>, cycles: u64, observers: usize) -> Result<Results> {
+fn run_iceoryx2(
+    config: &Config,
+    stage_config: Option<&Path>,
+    cycles: u64,
+    observers: usize,
+    wakeup: Wakeup,
+) -> Result<Results> {
+    let name = match wakeup {
+        Wakeup::Doorbell => "iceoryx2",
+        Wakeup::Event => "iceoryx2-events",
+    };
     let scope = RunScope::new(&format!("hbench{}_", std::process::id() % 100_000))?;
     scope.remove_all_files()?;
     let result = (|| -> Result<Results> {
         let bus = Bus::open(&scope, "bench-driver")?;
-        let first: Outlet<BenchSample> = Outlet::open(&bus, SERVICES[0])?;
-        let last: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[5], 4)?;
+        let first: Outlet<BenchSample> = Outlet::open_waking(&bus, SERVICES[0], wakeup)?;
+        let last: Inlet<BenchSample> = Inlet::open_waking(&bus, SERVICES[5], 4, wakeup)?;
         let observers = (0..observers)
             .flat_map(|_| SERVICES.map(|name| Reader::<BenchSample>::open(&bus, name, 4)))
             .collect::<Result<Vec<_>, _>>()?;
-        let children = StageProcesses::start_in(&scope, "iceoryx2", stage_config)?;
+        let children = StageProcesses::start_in(&scope, name, stage_config)?;
         let results = drive(
             cycles,
-            "iceoryx2",
+            name,
             config,
             |s| {
                 first.publish(*s)?;
@@ -688,17 +717,18 @@ pub fn stage(args: StageArgs) -> Result<()> {
     for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         tracing::warn!("{e}");
     }
-    if std::env::var("PROTO_PRIO_ASC").is_ok() {
-        let _ = placement::run_realtime(Some(51 + args.index as u8));
-    }
     let mut stage = Stage::new(args.index, &config)?;
     let stamp = args.index + 1;
     match args.transport.as_str() {
-        "iceoryx2" => {
+        "iceoryx2" | "iceoryx2-events" => {
+            let wakeup = match args.transport.as_str() {
+                "iceoryx2" => Wakeup::Doorbell,
+                _ => Wakeup::Event,
+            };
             let scope = RunScope::from_env()?;
             let bus = Bus::open(&scope, &format!("bench-{}", STAGES[args.index]))?;
-            let input: Inlet<BenchSample> = Inlet::open(&bus, SERVICES[args.index], 4)?;
-            let output: Outlet<BenchSample> = Outlet::open(&bus, SERVICES[args.index + 1])?;
+            let input: Inlet<BenchSample> = Inlet::open_waking(&bus, SERVICES[args.index], 4, wakeup)?;
+            let output: Outlet<BenchSample> = Outlet::open_waking(&bus, SERVICES[args.index + 1], wakeup)?;
             crate::emit("ready\n")?;
             let mut failure = None;
             let mut on_input = || {
@@ -711,7 +741,7 @@ pub fn stage(args: StageArgs) -> Result<()> {
                     Ok(())
                 })
             };
-            hydractl_bus::run_single(input.listener(), &bus, &mut on_input)?;
+            hydractl_bus::run_single(input.input(), &bus, &mut on_input)?;
             failure.map_or(Ok(()), Err)
         }
         "iceoryx2-sem" => {
@@ -758,6 +788,6 @@ pub fn stage(args: StageArgs) -> Result<()> {
                 }
             }
         }
-        other => bail!("unknown transport `{other}`: iceoryx2, iceoryx2-sem or udp"),
+        other => bail!("unknown transport `{other}`: iceoryx2, iceoryx2-events, iceoryx2-sem or udp"),
     }
 }
