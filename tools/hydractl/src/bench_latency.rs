@@ -27,13 +27,13 @@ use hydractl_stages::{
 
 use crate::slowest::Slowest;
 
-const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
+pub(crate) const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
 /// `iceoryx2` is the live stack's: samples in shared memory, each hop woken
 /// by its service's doorbell (a futex); `iceoryx2-events` wakes each hop
 /// with iceoryx2's own events (a datagram on a unix socket, `ppoll`);
 /// `iceoryx2-sem` with iceoryx2's semaphore events.
 const TRANSPORTS: [&str; 5] = ["iceoryx2", "iceoryx2-events", "iceoryx2-sem", "udp", "calls"];
-const SERVICES: [&str; 6] = [
+pub(crate) const SERVICES: [&str; 6] = [
     "hydractl/bench/0",
     "hydractl/bench/1",
     "hydractl/bench/2",
@@ -170,13 +170,13 @@ fn reading(seq: u64) -> BenchSample {
     }
 }
 
-struct Results {
+pub(crate) struct Results {
     name: &'static str,
     /// End-to-end, ns.
     total: Vec<u64>,
     /// Per hop i (driver → stage 1, …, stage 5 → driver), ns.
     hops: [Vec<u64>; 6],
-    misses: u64,
+    pub(crate) misses: u64,
     /// The slowest cycles, slowest first: end-to-end and per hop, ns. A
     /// stall is told apart by the hop it happened in.
     slowest: Slowest<[u64; 6], 3>,
@@ -426,12 +426,12 @@ fn ready_line(child: &mut Child) -> Result<String> {
 
 /// The benchmark's stage processes: killed when dropped, so an early
 /// return never leaves one running.
-struct StageProcesses(Vec<Child>);
+pub(crate) struct StageProcesses(Vec<Child>);
 
 impl StageProcesses {
     /// Starts the five stages over a shared-memory `transport` in `scope`,
     /// each ready (its ports open) before the next starts.
-    fn start_in(scope: &RunScope, transport: &str, stage_config: Option<&Path>) -> Result<Self> {
+    pub(crate) fn start_in(scope: &RunScope, transport: &str, stage_config: Option<&Path>) -> Result<Self> {
         let mut children = StageProcesses(Vec::new());
         for index in 0..5 {
             children
@@ -442,6 +442,10 @@ impl StageProcesses {
             }
         }
         Ok(children)
+    }
+
+    pub(crate) fn pids(&self) -> Vec<u32> {
+        self.0.iter().map(Child::id).collect()
     }
 }
 
@@ -675,10 +679,14 @@ fn run_calls(config: &Config, cycles: u64) -> Result<Results> {
     )
 }
 
+/// Readings sent before the timed ones, for every stage to open its ports
+/// and settle.
+pub(crate) const SETTLE_CYCLES: u64 = 200;
+
 /// Sends one reading per millisecond (paced, as the plant does) and records
 /// each answer's latency; `between_cycles` (the observers' reading) runs
 /// once a cycle is timed, as the live stack's observers read on other CPUs.
-fn drive(
+pub(crate) fn drive(
     cycles: u64,
     name: &'static str,
     config: &Config,
@@ -688,13 +696,13 @@ fn drive(
     let period = Duration::from_secs_f64(config.timing.control_period());
     let mut results = Results::new(name, cycles as usize);
     // Let every stage open its ports and settle.
-    for seq in 0..200 {
+    for seq in 0..SETTLE_CYCLES {
         round_trip(&reading(seq))?;
         between_cycles()?;
         std::thread::sleep(period);
     }
     let mut next = Instant::now();
-    for seq in 200..200 + cycles {
+    for seq in SETTLE_CYCLES..SETTLE_CYCLES + cycles {
         std::thread::sleep(next.saturating_duration_since(Instant::now()));
         next += period;
         let sent = reading(seq);

@@ -3,6 +3,7 @@
 mod bench_latency;
 mod bench_record;
 mod bench_stalls;
+mod bench_syscalls;
 mod can;
 mod control;
 mod doctor;
@@ -209,6 +210,9 @@ enum BenchCommand {
     /// Sensor-to-valve latency of the five stages over iceoryx2 between
     /// processes, over UDP loopback between processes, and as function calls.
     Latency(bench_latency::LatencyArgs),
+    /// System calls per hop of the loop's live-stack transport, counted by
+    /// strace attached to each stage.
+    Syscalls(bench_syscalls::SyscallsArgs),
     /// Sustained recording throughput against the mcap crate's raw write speed.
     Record(bench_record::RecordBenchArgs),
     /// How long this computer takes the loop's CPU away from a process
@@ -295,6 +299,7 @@ fn run_command() -> Result<()> {
             save_data.as_deref(),
         ),
         Command::Bench(BenchCommand::Latency(args)) => bench_latency::bench(args),
+        Command::Bench(BenchCommand::Syscalls(args)) => bench_syscalls::bench(args),
         Command::Bench(BenchCommand::Record(args)) => bench_record::bench(args),
         Command::Bench(BenchCommand::Stalls(args)) => bench_stalls::bench(args),
         Command::BenchStage(args) => bench_latency::stage(args),
