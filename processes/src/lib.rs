@@ -15,6 +15,8 @@ pub mod can_valve;
 pub mod handover;
 pub mod live_plant;
 pub mod logging;
+#[cfg(not(test))]
+pub mod process;
 pub mod recording;
 pub mod shadow;
 pub mod supervisor;

@@ -1,0 +1,78 @@
+//! The virtual CAN bus's wire: takes the frames every station hands over
+//! on `hydractl/can/<interface>/tx`, lets the lowest ID win when the bus
+//! frees, holds each for its bits at the configured bitrate, and delivers
+//! it to every station on `hydractl/can/<interface>/rx` when its last bit
+//! has crossed. The config's `[can]` table names the bus and its bitrate,
+//! and `[can.faults]` what the wire does wrong and when (a COB-ID's frames
+//! delayed, transmissions destroyed by error frames), to try the stack.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use hydractl_bus::can::{frame_sample, sample_frame};
+use hydractl_bus::{clock, run_until, Inlet, Outlet};
+use hydractl_can::wire::Wire;
+use hydractl_samples::{service, CanFrameSample};
+
+/// Frames the wire may be handed between two of its wake-ups.
+const TX_BUFFER: usize = 256;
+
+pub fn run() -> Result<()> {
+    let started = crate::start("canbus")?;
+    let can = started.config.can.clone().unwrap_or_default();
+    let tx: Inlet<CanFrameSample> =
+        Inlet::open(&started.bus, &service::can_tx(&can.interface), TX_BUFFER).context("the bus's transmit side")?;
+    let rx: Outlet<CanFrameSample> =
+        Outlet::open(&started.bus, &service::can_rx(&can.interface)).context("the bus's receive side")?;
+    let mut wire = Wire::new(can.bitrate);
+    let faults = can.faults.clone();
+    let mut faults_on = false;
+    // The service keeps each station's last frame for late joiners: one
+    // from before this wire started was sent to a wire that is gone.
+    let started_ns = clock::now_ns();
+    let mut delivered = 0u64;
+    let mut failure = None;
+    started.enter_realtime();
+    let inputs = [tx.input()];
+    let next_event = |wire: &Wire| {
+        wire.next_event_ns().map(|at| {
+            let now = clock::now_ns();
+            Instant::now() + Duration::from_nanos(at.saturating_sub(now))
+        })
+    };
+    let wire_cell = std::cell::RefCell::new(&mut wire);
+    run_until(
+        &inputs,
+        &started.bus,
+        || next_event(&wire_cell.borrow()),
+        |_| {
+            hydractl_bus::guarded(&mut failure, || -> Result<()> {
+                let mut wire = wire_cell.borrow_mut();
+                if let Some(f) = &faults {
+                    let since_s = clock::now_ns().saturating_sub(started_ns) as f64 * 1e-9;
+                    let due = since_s >= f.after_s && f.until_s.is_none_or(|u| since_s < u);
+                    if due && !faults_on {
+                        wire.delay(f.delay_cob_id.map(|id| (id, u64::from(f.delay_us) * 1000)));
+                        wire.corrupt(f.error_frames);
+                    } else if !due && faults_on {
+                        wire.delay(None);
+                    }
+                    faults_on = due;
+                }
+                while let Some(sample) = tx.next()? {
+                    if sample.time_ns >= started_ns {
+                        wire.submit(sample_frame(&sample), sample.station, sample.time_ns);
+                    }
+                }
+                while let Some(delivery) = wire.poll(clock::now_ns()) {
+                    delivered += 1;
+                    let mut sample = frame_sample(&delivery.frame, delivered, delivery.end_ns, delivery.station);
+                    sample.submitted_ns = delivery.submitted_ns;
+                    rx.publish(sample)?;
+                }
+                Ok(())
+            })
+        },
+    )?;
+    failure.map_or(Ok(()), Err)
+}
