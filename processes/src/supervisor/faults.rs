@@ -41,22 +41,47 @@ pub(super) fn is_hung(liveness: Liveness, startup_grace: Duration, hung_after: D
     liveness.uptime > startup_grace && liveness.input_flowing && liveness.quiet_for > hung_after
 }
 
-/// A process's time on its CPU and waiting for it, ns, since it started
-/// (`/proc/PID/schedstat`); `None` once it is gone.
-pub(super) fn cpu_times(pid: u32) -> Option<(u64, u64)> {
+/// What the kernel counts of a process's main thread since it started.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(super) struct CpuTimes {
+    /// On its CPU, ns (`/proc/PID/schedstat`).
+    pub(super) run_ns: u64,
+    /// Runnable and waiting for the CPU, ns.
+    pub(super) wait_ns: u64,
+    /// Times it gave up the CPU to sleep (`voluntary_ctxt_switches`).
+    pub(super) sleeps: u64,
+}
+
+/// A process's [`CpuTimes`]; `None` once it is gone.
+pub(super) fn cpu_times(pid: u32) -> Option<CpuTimes> {
     let text = std::fs::read_to_string(format!("/proc/{pid}/schedstat")).ok()?;
     let mut fields = text.split_ascii_whitespace().map(|f| f.parse::<u64>().ok());
-    Some((fields.next()??, fields.next()??))
+    let (run_ns, wait_ns) = (fields.next()??, fields.next()??);
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let sleeps = status
+        .lines()
+        .find_map(|line| line.strip_prefix("voluntary_ctxt_switches:"))?
+        .trim()
+        .parse()
+        .ok()?;
+    Some(CpuTimes {
+        run_ns,
+        wait_ns,
+        sleeps,
+    })
 }
 
 /// How a process used its CPU over the supervisor's last rounds: a stage
 /// of the loop needs a few per cent of it; one that takes more than its
-/// share for long spins (a busy loop at the loop's priority starves every
-/// process beside it, and only the CPU time says which one it is); one
-/// that wanted the CPU and did not get it is starved, not hung.
+/// share for long, never sleeping, spins (a busy loop at the loop's
+/// priority starves every process beside it, and only the CPU time says
+/// which one it is); one that wanted the CPU and did not get it is starved,
+/// not hung. A process that slept in a round is not spinning, whatever its
+/// time: without the kernel's interrupt time accounting, the interrupts
+/// served while it ran are counted as its own.
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct CpuWatch {
-    last: Option<(u32, Instant, u64, u64)>,
+    last: Option<(u32, Instant, CpuTimes)>,
     /// How long it has used more than its share, without a break.
     pub(super) busy_for: Duration,
     /// How long it has waited for the CPU more than half the time.
@@ -65,17 +90,18 @@ pub(super) struct CpuWatch {
 
 impl CpuWatch {
     /// Takes process `pid`'s CPU times at `now`; a new pid starts afresh.
-    pub(super) fn update(&mut self, pid: u32, now: Instant, times: Option<(u64, u64)>, share: f64) {
-        let Some((run_ns, wait_ns)) = times else {
+    pub(super) fn update(&mut self, pid: u32, now: Instant, times: Option<CpuTimes>, share: f64) {
+        let Some(times) = times else {
             *self = Self::default();
             return;
         };
-        if let Some((_, at, last_run, last_wait)) = self.last.filter(|l| l.0 == pid) {
+        if let Some((_, at, last)) = self.last.filter(|l| l.0 == pid) {
             let elapsed = now.saturating_duration_since(at);
             let elapsed_ns = elapsed.as_nanos().max(1) as f64;
-            let ran = run_ns.saturating_sub(last_run) as f64 / elapsed_ns;
-            let waited = wait_ns.saturating_sub(last_wait) as f64 / elapsed_ns;
-            self.busy_for = if ran > share {
+            let ran = times.run_ns.saturating_sub(last.run_ns) as f64 / elapsed_ns;
+            let waited = times.wait_ns.saturating_sub(last.wait_ns) as f64 / elapsed_ns;
+            let slept = times.sleeps > last.sleeps;
+            self.busy_for = if ran > share && !slept {
                 self.busy_for + elapsed
             } else {
                 Duration::ZERO
@@ -89,7 +115,7 @@ impl CpuWatch {
             self.busy_for = Duration::ZERO;
             self.starved_for = Duration::ZERO;
         }
-        self.last = Some((pid, now, run_ns, wait_ns));
+        self.last = Some((pid, now, times));
     }
 }
 
@@ -188,29 +214,55 @@ mod tests {
     fn a_process_over_its_cpu_share_without_a_break_spins_and_one_kept_waiting_is_starved() {
         let t0 = Instant::now();
         let ms = |n: u64| t0 + Duration::from_millis(n);
+        let times = |run_ns: u64, wait_ns: u64, sleeps: u64| {
+            Some(CpuTimes {
+                run_ns,
+                wait_ns,
+                sleeps,
+            })
+        };
         let mut watch = CpuWatch::default();
-        watch.update(7, ms(0), Some((0, 0)), 0.5);
-        // 5 ms rounds: 4.5 ms on the CPU in each.
+        watch.update(7, ms(0), times(0, 0, 10), 0.5);
+        // 5 ms rounds: 4.5 ms on the CPU in each, never sleeping.
         for k in 1..=4u64 {
-            watch.update(7, ms(5 * k), Some((k * 4_500_000, 0)), 0.5);
+            watch.update(7, ms(5 * k), times(k * 4_500_000, 0, 10), 0.5);
         }
         assert_eq!(watch.busy_for, Duration::from_millis(20));
         // A round at its usual few per cent: the streak ends.
-        watch.update(7, ms(25), Some((18_100_000, 0)), 0.5);
+        watch.update(7, ms(25), times(18_100_000, 0, 15), 0.5);
         assert_eq!(watch.busy_for, Duration::ZERO);
         // Runnable but kept off the CPU.
-        watch.update(7, ms(30), Some((18_100_000, 4_000_000)), 0.5);
+        watch.update(7, ms(30), times(18_100_000, 4_000_000, 15), 0.5);
         assert_eq!(watch.starved_for, Duration::from_millis(5));
         // A new process in its place starts afresh; a gone one has nothing.
-        watch.update(8, ms(35), Some((90_000_000, 0)), 0.5);
+        watch.update(8, ms(35), times(90_000_000, 0, 0), 0.5);
         assert_eq!((watch.busy_for, watch.starved_for), (Duration::ZERO, Duration::ZERO));
         watch.update(8, ms(40), None, 0.5);
         assert!(watch.last.is_none());
     }
 
     #[test]
+    fn a_process_that_sleeps_every_period_is_not_spinning_whatever_time_it_is_charged() {
+        let t0 = Instant::now();
+        let ms = |n: u64| t0 + Duration::from_millis(n);
+        let mut watch = CpuWatch::default();
+        // Interrupts served while it ran count as its time: 4.5 ms of each
+        // 5 ms round, while it slept once a period as a stage does.
+        for k in 0..=8u64 {
+            let times = CpuTimes {
+                run_ns: k * 4_500_000,
+                wait_ns: 0,
+                sleeps: k * 5,
+            };
+            watch.update(7, ms(5 * k), Some(times), 0.5);
+            assert_eq!(watch.busy_for, Duration::ZERO, "round {k}");
+        }
+    }
+
+    #[test]
     fn the_supervisors_own_process_has_cpu_times() {
-        assert!(cpu_times(std::process::id()).is_some());
+        let times = cpu_times(std::process::id()).expect("times");
+        assert!(times.run_ns > 0);
     }
 
     #[test]
