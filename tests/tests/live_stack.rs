@@ -34,6 +34,12 @@ fn the_stack_runs_ten_seconds_and_tracks_as_offline() {
         );
     }
     assert!(live["deadline_misses"].is_u64());
+    // Each reading answered before the next is never stale, and the loop
+    // is never silent: a run that missed no deadline drove no valve fault,
+    // its start and end included.
+    if live["deadline_misses"] == 0 {
+        assert_eq!(live["valve_fault_cycles"], 0, "{live}");
+    }
     let (rms_live, rms_offline) = (
         live["rms_tracking_error_rad"].as_f64().expect("rms"),
         offline["rms_tracking_error_rad"].as_f64().expect("rms"),

@@ -233,11 +233,19 @@ pub fn run() -> Result<()> {
                 // Every reading counts towards the guard, in order, before
                 // the command that answers one of them.
                 let mut neutral = None;
+                let loop_started = actuator.newest.sensor_time_ns != 0;
                 while let Some(s) = sensor.next()? {
                     actuator.note(s);
                     neutral = stage.on_sensor(s.sensor_seq, s.valid == valid::ALL).or(neutral);
                 }
                 let newest = actuator.newest;
+                // The loop starts with its first reading: silence is counted
+                // from there, not from the valve's own start, which waits
+                // for the other stages (else the first tick after the first
+                // reading would call the start-up silence).
+                if !loop_started && newest.sensor_time_ns != 0 {
+                    last_driven = Instant::now();
+                }
                 let command = match wake {
                     Wake::Input(_) => torque.latest()?.and_then(|t| {
                         let (command, faults) = stage.on_command(t.sensor_seq, t.command, t.variant)?;
