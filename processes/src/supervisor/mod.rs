@@ -12,6 +12,7 @@ mod seat;
 mod status;
 mod strangers;
 mod swaps;
+mod tracking;
 mod valve_log;
 
 use std::time::{Duration, Instant};
@@ -32,7 +33,7 @@ use recorder::RecorderChild;
 use seat::Seat;
 use status::{status_of, LoopMemory};
 use strangers::Strangers;
-use swaps::Swaps;
+use swaps::{SwapJudge, Swaps};
 
 /// The supervisor's own ports on the loop's services and its command service.
 struct Ports {
@@ -138,6 +139,12 @@ impl Supervisor {
                 config_path,
                 cascade,
                 Duration::from_secs_f64(config.timing.control_period()),
+                SwapJudge {
+                    readings: (config.supervisor.swap_judge_ms as f64 / 1000.0 / config.timing.control_period()).round()
+                        as u64,
+                    factor: config.supervisor.swap_rollback_factor,
+                    floor_rad: config.supervisor.swap_rollback_min_rms_rad,
+                },
             )?,
             seat,
             ports: None,

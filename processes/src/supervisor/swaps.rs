@@ -13,6 +13,7 @@ use hydractl_samples::{
 
 use super::child::Supervised;
 use super::faults::Fault;
+use super::tracking::{worse_enough, TrackingLog};
 use super::valve_log::{SwitchQuality, ValveLog};
 
 /// Hot swaps of the position or torque controller, asked for over
@@ -44,6 +45,30 @@ pub(super) struct Swaps {
     /// reading and when, by the valve's clock.
     last_silence: Option<(u64, u64)>,
     period_ns: u64,
+    /// The loop's tracking error, by reading: a swap is judged by it.
+    tracking: TrackingLog,
+    judge: SwapJudge,
+}
+
+/// How a swap is judged by the tracking that follows it
+/// (`[supervisor] swap_judge_ms`, `swap_rollback_factor`,
+/// `swap_rollback_min_rms_rad`).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct SwapJudge {
+    /// Readings watched after the switch, compared with as many before;
+    /// 0: a swap is not judged.
+    pub(super) readings: u64,
+    pub(super) factor: f64,
+    pub(super) floor_rad: f64,
+}
+
+/// A swap that undoes the one before: what it undoes, and why.
+#[derive(Debug, Clone, Copy)]
+struct Undoing {
+    /// The variant swapped away from again.
+    variant: &'static str,
+    rms_after: f64,
+    rms_before: f64,
 }
 
 struct SwapInProgress {
@@ -55,6 +80,7 @@ struct SwapInProgress {
     request: PendingCommand<SupervisorRequest, SupervisorReply>,
     standby_outputs: u32,
     phase: SwapPhase,
+    undoing: Option<Undoing>,
 }
 
 enum SwapPhase {
@@ -73,6 +99,14 @@ enum SwapPhase {
         /// new variant.
         in_charge: bool,
     },
+    /// Done; the tracking that follows is watched before the answer.
+    Judging {
+        at_seq: u64,
+        since: Instant,
+        /// The answer had the swap not been judged.
+        message: String,
+        quality: SwitchQuality,
+    },
 }
 
 /// Readings between the handover being published and the switch: 20 ms,
@@ -88,6 +122,7 @@ impl Swaps {
         config: Option<PathBuf>,
         cascade: bool,
         period: Duration,
+        judge: SwapJudge,
     ) -> Result<Self> {
         Ok(Self {
             handovers: Outlet::open(bus, service::HANDOVER)?,
@@ -108,6 +143,9 @@ impl Swaps {
             amplifier_neutral_from: None,
             last_silence: None,
             period_ns: period.as_nanos().max(1) as u64,
+            // Twice the watched readings: as many before the switch.
+            tracking: TrackingLog::with_capacity((2 * judge.readings + 1000) as usize),
+            judge,
         })
     }
 
@@ -120,6 +158,19 @@ impl Swaps {
         now: Instant,
     ) -> Result<()> {
         self.take_valve_samples()?;
+        // The outer loop's samples: the tracking error, and whether the
+        // new variant answers (a position swap's handover).
+        let handed_over = self.current.as_ref().and_then(|swap| match swap.phase {
+            SwapPhase::HandedOver { at_seq, .. } if swap.stage == code::STAGE_POSITION => {
+                Some((at_seq, code::variant_code(swap.to).unwrap_or(u32::MAX)))
+            }
+            _ => None,
+        });
+        let mut position_answered_by_new = false;
+        while let Some(p) = self.position.next()? {
+            self.tracking.push(p.sensor_seq, p.reference_angle - p.angle);
+            position_answered_by_new |= handed_over.is_some_and(|(at, v)| p.sensor_seq >= at && p.variant == v);
+        }
         let mut standby_outputs = 0;
         while self.standby_position.next()?.is_some() {
             standby_outputs += 1;
@@ -193,9 +244,7 @@ impl Swaps {
                 }
                 let new_variant = code::variant_code(swap.to).unwrap_or(u32::MAX);
                 let answered_by_new = |seq: u64, variant: u32| seq >= at_seq && variant == new_variant;
-                while let Some(p) = self.position.next()? {
-                    in_charge |= swap.stage == code::STAGE_POSITION && answered_by_new(p.sensor_seq, p.variant);
-                }
+                in_charge |= position_answered_by_new;
                 while let Some(t) = self.torque.next()? {
                     in_charge |= swap.stage == code::STAGE_TORQUE && answered_by_new(t.sensor_seq, t.variant);
                 }
@@ -247,6 +296,24 @@ impl Swaps {
                 swap.child.request_stop();
                 swap.child.finish_stop(now + Duration::from_secs(1));
                 self.publish_event(code::EVENT_SWAP, &swap, at_seq, quality)?;
+                if let Some(undone) = swap.undoing {
+                    let message = format!(
+                        "rolled back: {} runs {} again from reading {at_seq} ({} missed cycles); {} tracked {:.4} rad rms against {:.4} before",
+                        code::stage_name(swap.stage),
+                        swap.to,
+                        quality.missed_cycles,
+                        undone.variant,
+                        undone.rms_after,
+                        undone.rms_before,
+                    );
+                    tracing::warn!("{message}");
+                    return reply(
+                        swap.request,
+                        false,
+                        code::variant_code(undone.variant).unwrap_or(0),
+                        &message,
+                    );
+                }
                 let message = format!(
                     "{} now runs {} (was {}) from reading {at_seq}: {} missed cycles, command step {:.2}% of its range (the loop's own steps: {:.2}% before, {:.2}% after)",
                     code::stage_name(swap.stage),
@@ -257,14 +324,76 @@ impl Swaps {
                     quality.loop_step_before * 100.0,
                     quality.loop_step_after * 100.0
                 );
-                let from = code::variant_code(swap.from).unwrap_or(0);
-                swap.request.reply(SupervisorReply {
-                    command_step: quality.command_step,
-                    missed_cycles: quality.missed_cycles,
-                    accepted: 1,
-                    from_variant: from,
-                    message: fixed_name(&message),
-                })?;
+                if self.judge.readings == 0 {
+                    return answer(swap, quality, &message);
+                }
+                swap.phase = SwapPhase::Judging {
+                    at_seq,
+                    since: now,
+                    message,
+                    quality,
+                };
+                self.current = Some(swap);
+            }
+            SwapPhase::Judging {
+                at_seq,
+                since,
+                ref message,
+                quality,
+            } => {
+                let until = at_seq + self.judge.readings;
+                let seen = self.tracking.newest().is_some_and(|newest| newest >= until);
+                // A loop that stopped answering is the fault watch's: the
+                // swap is judged on what came.
+                let waited_long = now.saturating_duration_since(since)
+                    > Duration::from_nanos(self.period_ns.saturating_mul(2 * self.judge.readings));
+                if !seen && !waited_long {
+                    self.current = Some(swap);
+                    return Ok(());
+                }
+                let before = self
+                    .tracking
+                    .rms_between(at_seq.saturating_sub(self.judge.readings), at_seq);
+                let after = self.tracking.rms_between(at_seq, until);
+                let (Some((rms_before, _)), Some((rms_after, _))) = (before, after) else {
+                    let message =
+                        format!("{message}; its tracking not judged: no outer-loop samples around the switch");
+                    return answer(swap, quality, &message);
+                };
+                if !worse_enough(rms_before, rms_after, self.judge.factor, self.judge.floor_rad) {
+                    let message = format!("{message}; tracking {rms_after:.4} rad rms after, {rms_before:.4} before");
+                    return answer(swap, quality, &message);
+                }
+                tracing::warn!(
+                    "{} tracks {rms_after:.4} rad rms after the swap against {rms_before:.4} before: swapping back to {}",
+                    swap.to,
+                    swap.from
+                );
+                let undoing = Undoing {
+                    variant: swap.to,
+                    rms_after,
+                    rms_before,
+                };
+                let mut child = Supervised::new(code::stage_name(swap.stage), &self.dir, self.config.clone());
+                child.variant = Some(swap.from);
+                if let Err(e) = child.spawn(scope, &["--standby".to_owned()]) {
+                    let message = format!(
+                        "{message}; it tracks {rms_after:.4} rad rms against {rms_before:.4} before, and the {} process to swap back to cannot start: {e:#}",
+                        swap.from
+                    );
+                    return reply(swap.request, false, code::variant_code(swap.to).unwrap_or(0), &message);
+                }
+                self.current = Some(SwapInProgress {
+                    index: swap.index,
+                    stage: swap.stage,
+                    from: swap.to,
+                    to: swap.from,
+                    child,
+                    request: swap.request,
+                    standby_outputs: 0,
+                    phase: SwapPhase::Starting { since: now },
+                    undoing: Some(undoing),
+                });
             }
         }
         Ok(())
@@ -317,6 +446,7 @@ impl Swaps {
             request,
             standby_outputs: 0,
             phase: SwapPhase::Starting { since: Instant::now() },
+            undoing: None,
         });
         Ok(())
     }
@@ -492,6 +622,17 @@ impl Swaps {
         self.event_seq += 1;
         Ok(())
     }
+}
+
+/// A swap done and kept: the caller hears how it went.
+fn answer(swap: SwapInProgress, quality: SwitchQuality, message: &str) -> Result<()> {
+    Ok(swap.request.reply(SupervisorReply {
+        command_step: quality.command_step,
+        missed_cycles: quality.missed_cycles,
+        accepted: 1,
+        from_variant: code::variant_code(swap.from).unwrap_or(0),
+        message: fixed_name(message),
+    })?)
 }
 
 pub(super) fn reply(

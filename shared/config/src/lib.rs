@@ -298,6 +298,34 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_swap_judge_that_would_undo_an_equal_variant_is_refused_by_name() {
+        let path = Path::new("judge.toml");
+        let sim = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sim.toml"))
+            .expect("config/sim.toml");
+        assert_eq!(
+            Config::parse(&sim, path).expect("sim.toml").supervisor.swap_judge_ms,
+            2000
+        );
+        for (from, to, key) in [
+            (
+                "swap_rollback_factor = 3.0",
+                "swap_rollback_factor = 0.5",
+                "swap_rollback_factor",
+            ),
+            (
+                "swap_rollback_min_rms_rad = 0.05",
+                "swap_rollback_min_rms_rad = -1.0",
+                "swap_rollback_min_rms_rad",
+            ),
+        ] {
+            let err = Config::parse(&sim.replace(from, to), path).expect_err(key).to_string();
+            assert!(err.contains(key) && err.contains("judge.toml"), "{err}");
+        }
+        let off = Config::parse(&sim.replace("swap_judge_ms = 2000", "swap_judge_ms = 0"), path).expect("not judged");
+        assert_eq!(off.supervisor.swap_judge_ms, 0);
+    }
+
+    #[test]
     fn a_machine_config_starts_from_its_base_and_overrides_the_plant() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/machine.toml");
         let config = Config::load(&path).expect("config/machine.toml");

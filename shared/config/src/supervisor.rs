@@ -39,6 +39,15 @@ pub struct SupervisorConfig {
     /// …for this long without a break spins (a busy loop starves every
     /// process on the loop's CPU): it is killed and restarted.
     pub spinning_after_ms: u64,
+    /// After a swap, the tracking error is watched for this long (0: not
+    /// at all) and compared with as long before it…
+    pub swap_judge_ms: u64,
+    /// …and a variant whose rms exceeds the previous one's this many times
+    /// is swapped back…
+    pub swap_rollback_factor: f64,
+    /// …when its rms is above this too, rad: a loop tracking within noise
+    /// stays whatever the ratio.
+    pub swap_rollback_min_rms_rad: f64,
 }
 
 impl Default for SupervisorConfig {
@@ -58,6 +67,9 @@ impl Default for SupervisorConfig {
             limit_cycle_backoff_ms: 1000,
             spinning_cpu_share: 0.5,
             spinning_after_ms: 20,
+            swap_judge_ms: 2000,
+            swap_rollback_factor: 3.0,
+            swap_rollback_min_rms_rad: 0.05,
         }
     }
 }

@@ -186,6 +186,24 @@ impl Config {
                 });
             }
         }
+        if !(sup.swap_rollback_factor.is_finite() && sup.swap_rollback_factor >= 1.0) {
+            return Err(ConfigError::Supervisor {
+                path: path.to_owned(),
+                reason: format!(
+                    "swap_rollback_factor must be at least 1 (a variant as good as the one before stays), got {}",
+                    sup.swap_rollback_factor
+                ),
+            });
+        }
+        if !(sup.swap_rollback_min_rms_rad.is_finite() && sup.swap_rollback_min_rms_rad >= 0.0) {
+            return Err(ConfigError::Supervisor {
+                path: path.to_owned(),
+                reason: format!(
+                    "swap_rollback_min_rms_rad must be 0 or more, rad, got {}",
+                    sup.swap_rollback_min_rms_rad
+                ),
+            });
+        }
         if !(sup.spinning_cpu_share > 0.0 && sup.spinning_cpu_share <= 1.0) {
             return Err(ConfigError::Supervisor {
                 path: path.to_owned(),

@@ -442,7 +442,7 @@ pub struct SupervisorReply {
     pub accepted: u32,
     pub from_variant: u32,
     /// NUL-padded UTF-8: what happened, in words.
-    pub message: [u8; 176],
+    pub message: [u8; 320],
 }
 
 impl Default for SupervisorReply {
@@ -452,7 +452,7 @@ impl Default for SupervisorReply {
             missed_cycles: 0,
             accepted: 0,
             from_variant: 0,
-            message: [0; 176],
+            message: [0; 320],
         }
     }
 }
@@ -673,7 +673,7 @@ mod tests {
         assert_eq!(size_of::<RecorderStatus>(), 10 * 8);
         assert_eq!(size_of::<Handover>(), 5 * 8);
         assert_eq!(size_of::<SupervisorEvent>(), 10 * 8 + 8 + 48);
-        assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 176);
+        assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 320);
     }
 
     #[test]
