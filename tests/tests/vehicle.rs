@@ -3,6 +3,7 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::time::Duration;
 
 use hydractl_system_tests::*;
 
@@ -386,5 +387,58 @@ fn as_a_service_every_process_logs_to_the_journal_with_its_fields() {
     assert!(
         !text.contains("started valve"),
         "the journal's lines are not written twice: {text}"
+    );
+}
+
+#[test]
+fn as_a_service_the_supervisor_says_ready_once_the_loop_runs_and_pings_the_watchdog() {
+    use std::os::unix::net::UnixDatagram;
+    let _turn = serial();
+    let scope = unique_scope("notify");
+    let dir = scratch_dir("notify");
+    // As systemd sets it for `Type=notify`, `WatchdogSec=1`: the unit's
+    // main process is `hydractl run`, whose pid WATCHDOG_PID names.
+    let socket_path = dir.join("notify.sock");
+    let socket = UnixDatagram::bind(&socket_path).expect("notify socket");
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .expect("timeout");
+    let mut run = hydractl()
+        .args(["run", "--duration", "3"])
+        .env(hydractl_bus::PREFIX_ENV, scope.prefix())
+        .env("NOTIFY_SOCKET", &socket_path)
+        .env("WATCHDOG_USEC", "1000000")
+        .env("WATCHDOG_PID", "1")
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("hydractl run");
+    let mut messages = Vec::new();
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let mut buffer = [0u8; 512];
+    while std::time::Instant::now() < deadline {
+        match socket.recv(&mut buffer) {
+            Ok(n) => messages.push(String::from_utf8_lossy(&buffer[..n]).into_owned()),
+            Err(_) if matches!(run.try_wait(), Ok(Some(_))) => break,
+            Err(_) => {}
+        }
+    }
+    let status = wait_exit(&mut run, Duration::from_secs(10));
+    assert!(status.success());
+    let ready: Vec<usize> = (0..messages.len())
+        .filter(|&i| messages[i].lines().any(|l| l == "READY=1"))
+        .collect();
+    assert_eq!(ready.len(), 1, "one READY=1: {messages:?}");
+    // Half the watchdog's second: about six pings in three seconds.
+    let pings = messages.iter().filter(|m| m.lines().any(|l| l == "WATCHDOG=1")).count();
+    assert!((4..=10).contains(&pings), "{pings} pings: {messages:?}");
+    // Only the supervisor speaks: nothing but these two, and the status.
+    assert!(
+        messages
+            .iter()
+            .flat_map(|m| m.lines())
+            .all(|l| l == "READY=1" || l == "WATCHDOG=1" || l.starts_with("STATUS=")),
+        "{messages:?}"
     );
 }

@@ -145,6 +145,10 @@ impl Supervised {
         let spawned_ns = hydractl_bus::clock::now_ns();
         let child = command
             .env(PREFIX_ENV, scope.prefix())
+            // systemd hears from the supervisor alone (service_manager.rs).
+            .env_remove("NOTIFY_SOCKET")
+            .env_remove("WATCHDOG_USEC")
+            .env_remove("WATCHDOG_PID")
             .stdin(Stdio::null())
             .spawn()
             .with_context(|| format!("starting {}", self.binary.display()))?;

@@ -9,6 +9,7 @@ mod faults;
 mod heartbeats;
 mod recorder;
 mod seat;
+mod service_manager;
 mod status;
 mod strangers;
 mod swaps;
@@ -31,6 +32,7 @@ use faults::{after_limit_cycle, blamed_for_rejections, cpu_times, is_hung, Comeb
 use heartbeats::{Heartbeats, OuterLoopWatch};
 use recorder::RecorderChild;
 use seat::Seat;
+use service_manager::ServiceManager;
 use status::{status_of, LoopMemory};
 use strangers::Strangers;
 use swaps::{SwapJudge, Swaps};
@@ -83,6 +85,8 @@ pub struct Supervisor {
     last_tick: Option<Instant>,
     strangers: Strangers,
     loop_memory: LoopMemory,
+    /// systemd, when a unit started the run: ready, and the watchdog.
+    service_manager: ServiceManager,
 }
 
 impl Supervisor {
@@ -161,6 +165,7 @@ impl Supervisor {
             last_tick: None,
             strangers: Strangers::new(),
             loop_memory: LoopMemory::default(),
+            service_manager: ServiceManager::from_env(),
         })
     }
 
@@ -221,6 +226,7 @@ impl Supervisor {
             last_tick,
             strangers,
             loop_memory,
+            service_manager,
         } = self;
         let Some(Ports {
             commands,
@@ -572,6 +578,8 @@ impl Supervisor {
             other => other,
         };
         swaps.tick(scope, children, request, last_reading.map(|r| r.sensor_seq), now)?;
+        let loop_answers = service_manager.awaits_ready() && swaps.log.answered_any();
+        service_manager.tick(now, loop_answers);
         // Publishers that are none of the run's processes.
         let mut ours: Vec<u32> = children
             .iter()

@@ -103,6 +103,11 @@ impl ValveLog {
         rejected
     }
 
+    /// The valve drove a command without a fault: the loop answers.
+    pub fn answered_any(&self) -> bool {
+        self.entries.iter().any(|&(_, _, faults)| faults == 0)
+    }
+
     pub fn newest_seq(&self) -> Option<u64> {
         self.entries.back().map(|e| e.0)
     }
