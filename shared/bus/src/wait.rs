@@ -158,17 +158,10 @@ fn wait_loop(
                 return Ok(LoopExit::Stopped);
             }
         }
-        if let Some(at) = deadline {
-            let now = Instant::now();
-            if now >= at {
-                if on_wake(Wake::Tick) == Flow::Stop {
-                    return Ok(LoopExit::Stopped);
-                }
-                deadline = timer(Some(now));
-                continue;
-            }
+        match tick_if_due(deadline, &mut timer, &mut on_wake) {
+            Some(next) => deadline = next,
+            None => return Ok(LoopExit::Stopped),
         }
-        deadline = timer(None);
     })();
     nix::sys::signal::pthread_sigmask(SigmaskHow::SIG_SETMASK, Some(&outside_wait), None)
         .map_err(|e| BusError::ipc("restoring the signal mask", e))?;
@@ -202,18 +195,30 @@ fn doorbell_loop(
         if bell.wait(timeout) == Rung::Yes && on_wake(Wake::Input(0)) == Flow::Stop {
             return Ok(LoopExit::Stopped);
         }
-        if let Some(at) = deadline {
-            let now = Instant::now();
-            if now >= at {
-                if on_wake(Wake::Tick) == Flow::Stop {
-                    return Ok(LoopExit::Stopped);
-                }
-                deadline = timer(Some(now));
-                continue;
-            }
+        match tick_if_due(deadline, &mut timer, &mut on_wake) {
+            Some(next) => deadline = next,
+            None => return Ok(LoopExit::Stopped),
         }
-        deadline = timer(None);
     }
+}
+
+/// After a wait: the tick, when `deadline` has passed. The next deadline,
+/// or `None` when the callback stopped the loop.
+fn tick_if_due(
+    deadline: Option<Instant>,
+    timer: &mut impl FnMut(Option<Instant>) -> Option<Instant>,
+    on_wake: &mut impl FnMut(Wake) -> Flow,
+) -> Option<Option<Instant>> {
+    if let Some(at) = deadline {
+        let now = Instant::now();
+        if now >= at {
+            if on_wake(Wake::Tick) == Flow::Stop {
+                return None;
+            }
+            return Some(timer(Some(now)));
+        }
+    }
+    Some(timer(None))
 }
 
 /// Lets SIGINT and SIGTERM through to this thread (a process inherits its
