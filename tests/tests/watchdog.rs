@@ -55,6 +55,7 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr),
         );
+        eprintln!("swap {stage} {variant}: {stdout}{stderr}");
         let now = status(&scope);
         if kept {
             assert!(out.status.success(), "swap {stage} {variant}: {stderr}");

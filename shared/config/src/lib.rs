@@ -313,7 +313,7 @@ mod tests {
                 "swap_rollback_factor",
             ),
             (
-                "swap_rollback_min_rms_rad = 0.05",
+                "swap_rollback_min_rms_rad = 0.1",
                 "swap_rollback_min_rms_rad = -1.0",
                 "swap_rollback_min_rms_rad",
             ),

@@ -69,7 +69,7 @@ impl Default for SupervisorConfig {
             spinning_after_ms: 20,
             swap_judge_ms: 2000,
             swap_rollback_factor: 3.0,
-            swap_rollback_min_rms_rad: 0.05,
+            swap_rollback_min_rms_rad: 0.1,
         }
     }
 }
