@@ -95,8 +95,18 @@ impl Drop for ScratchDir {
 
 /// A `hydractl run` that is stopped when dropped, also when a test fails
 /// half-way: SIGTERM, then SIGKILL. Its supervisor and the loop die with it
-/// (each process has a parent-death signal).
-pub struct RunGuard(pub Child);
+/// (each process has a parent-death signal). With a log, the run's stderr
+/// is printed when the test fails, so that a failure says what the stack
+/// said.
+pub struct RunGuard(pub Child, pub Option<PathBuf>);
+
+/// Where a run's stderr goes until its test ends: kept and printed only
+/// when the test fails.
+fn run_log(scope: &RunScope) -> (PathBuf, Stdio) {
+    let path = std::env::temp_dir().join(format!("{}run.log", scope.prefix()));
+    let file = std::fs::File::create(&path).expect("the run's log");
+    (path, Stdio::from(file))
+}
 
 impl RunGuard {
     pub fn id(&self) -> u32 {
@@ -115,6 +125,19 @@ impl Drop for RunGuard {
             let _ = self.0.kill();
             let _ = self.0.wait();
         }
+        if let Some(log) = self.1.take() {
+            if std::thread::panicking() {
+                let text = std::fs::read_to_string(&log).unwrap_or_default();
+                let lines: Vec<&str> = text.lines().collect();
+                eprintln!(
+                    "the run's last stderr lines ({}):\n{}",
+                    log.display(),
+                    lines[lines.len().saturating_sub(60)..].join("\n")
+                );
+            } else {
+                let _ = std::fs::remove_file(&log);
+            }
+        }
     }
 }
 
@@ -132,11 +155,13 @@ fn run_command(scope: &RunScope, args: &[&str]) -> Command {
 
 /// Starts `hydractl run` with `args` in `scope`.
 pub fn start_run(scope: &RunScope, args: &[&str]) -> RunGuard {
+    let (log, stderr) = run_log(scope);
     RunGuard(
         run_command(scope, args)
-            .stderr(Stdio::null())
+            .stderr(stderr)
             .spawn()
             .expect("hydractl run starts"),
+        Some(log),
     )
 }
 
@@ -210,6 +235,7 @@ pub fn run_to_end(scope: &RunScope, args: &[&str], timeout: Duration) -> Output 
             .stderr(Stdio::piped())
             .spawn()
             .expect("hydractl run starts"),
+        None,
     );
     wait_exit(&mut guard.0, timeout);
     let child = std::mem::replace(&mut guard.0, Command::new("true").spawn().expect("true"));
@@ -543,12 +569,14 @@ impl RecordedRun {
             "--record",
             recording.to_str().expect("path"),
         ]);
+        let (log, stderr) = run_log(scope);
         let run = RunGuard(
             run_command(scope, &all)
                 .envs(env.iter().copied())
-                .stderr(Stdio::null())
+                .stderr(stderr)
                 .spawn()
                 .expect("hydractl run starts"),
+            Some(log),
         );
         Self {
             run,
