@@ -7,7 +7,7 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, Inlet, Outlet, RunScope, Wakeup};
@@ -15,7 +15,7 @@ use hydractl_config::Config;
 use hydractl_samples::BenchSample;
 use serde::Serialize;
 
-use crate::bench_latency::{drive, StageProcesses, SERVICES, STAGES};
+use crate::bench_latency::{drive, round_trip, StageProcesses, SERVICES, STAGES};
 
 #[derive(clap::Args)]
 pub struct SyscallsArgs {
@@ -187,18 +187,7 @@ fn count(
         cycles,
         transport,
         config,
-        |s| {
-            first.publish(*s)?;
-            let deadline = Instant::now() + Duration::from_millis(200);
-            while Instant::now() < deadline {
-                if let Some(back) = last.wait_latest(deadline.saturating_duration_since(Instant::now()))? {
-                    if back.seq == s.seq {
-                        return Ok(Some(back));
-                    }
-                }
-            }
-            Ok(None)
-        },
+        |s| round_trip(&first, &last, s, Duration::from_millis(200)),
         || Ok(()),
     )?;
     if settle_and_count.misses > cycles / 10 {

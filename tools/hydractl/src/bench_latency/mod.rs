@@ -69,6 +69,26 @@ pub struct LatencyArgs {
 }
 
 /// A stage process of the benchmark (started by `bench latency`).
+/// Sends `s` into the chain and waits up to `within` for it to come back
+/// from the valve stage; `None` when it did not (a miss).
+pub(crate) fn round_trip(
+    first: &Outlet<BenchSample>,
+    last: &Inlet<BenchSample>,
+    s: &BenchSample,
+    within: Duration,
+) -> Result<Option<BenchSample>> {
+    first.publish(*s)?;
+    let deadline = Instant::now() + within;
+    while Instant::now() < deadline {
+        if let Some(back) = last.wait_latest(deadline.saturating_duration_since(Instant::now()))? {
+            if back.seq == s.seq {
+                return Ok(Some(back));
+            }
+        }
+    }
+    Ok(None)
+}
+
 /// The reading the driver sends for cycle `seq`: a slow sweep, so the
 /// stages compute real values.
 fn reading(seq: u64) -> BenchSample {
@@ -396,18 +416,7 @@ fn run_iceoryx2(
             cycles,
             name,
             config,
-            |s| {
-                first.publish(*s)?;
-                let deadline = Instant::now() + Duration::from_millis(50);
-                while Instant::now() < deadline {
-                    if let Some(back) = last.wait_latest(deadline.saturating_duration_since(Instant::now()))? {
-                        if back.seq == s.seq {
-                            return Ok(Some(back));
-                        }
-                    }
-                }
-                Ok(None)
-            },
+            |s| round_trip(&first, &last, s, Duration::from_millis(50)),
             || {
                 for observer in &observers {
                     observer.latest()?;
