@@ -1,15 +1,18 @@
 //! The machine's valve on CAN, as the valve process drives it (CiA 408
 //! through hydractl-can's `ValveMaster`). At start it starts the node
-//! (NMT) and steps the control word to Active, a fault left by an earlier
-//! process (its RPDO timeout) cleared by R low then high; until the valve
-//! reports Active every set point it sends is neutral. Every command goes
-//! out in the set point RPDO: the valve's own RPDO timeout is the guard of
-//! last resort when this process dies.
+//! (NMT), writes the valve's own guard (the set point RPDO's timeout) and
+//! heartbeat by SDO and reads them back, then steps the control word to
+//! Active; until the valve reports Active every set point it sends is
+//! neutral. Every command goes out in the set point RPDO: the valve's own
+//! timeout is the guard of last resort when this process dies.
 //!
-//! A valve that faults once Active (an EMCY, a fault state) or whose
-//! heartbeat stops is latched: from then on only neutral is sent, the
-//! fault is published, and the process ends so that the supervisor starts
-//! it again, which brings the valve up afresh.
+//! Every fault is latched, whenever it is seen (bring-up included): an
+//! EMCY, a fault state, a heartbeat that stops or says the node left
+//! operational, a setting the valve refuses. Latched, it is written to the
+//! [`FaultLatch`] before anything else, only neutral is sent, the valve is
+//! told to hold, and nothing clears it but [`CanValve::reset`], a person's
+//! command: not a restart of this process, nor of the stack.
+//! [`fault_code`] numbers the faults that are not the valve's own EMCYs.
 
 use anyhow::{Context, Result};
 use hydractl_bus::can::{open_port, CanPort, Filter};
@@ -17,111 +20,230 @@ use hydractl_bus::{clock, Bus};
 use hydractl_can::canopen::{cob_id, Emergency, NmtState};
 use hydractl_can::master::{ValveFrame, ValveMaster};
 use hydractl_can::profile::Profile;
-use hydractl_can::valve::DeviceState;
+use hydractl_can::spool::SpoolWatch;
+use hydractl_can::valve::{fault_code, fault_code_name, DeviceState};
 
-/// Why the valve was given up on.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ValveFault {
-    Emergency(Emergency),
-    State(DeviceState),
-    HeartbeatLost,
-    NotOperational(NmtState),
-}
+use crate::valve_latch::{FaultLatch, LatchedFault};
 
-impl std::fmt::Display for ValveFault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Emergency(e) => write!(f, "EMCY {:#06x} ({})", e.code, e.describe()),
-            Self::State(s) => write!(f, "the valve reports {}", s.name()),
-            Self::HeartbeatLost => write!(f, "the valve's heartbeat stopped"),
-            Self::NotOperational(state) => write!(f, "the valve's heartbeat says {}", state.name()),
-        }
-    }
-}
+/// After a reset, a fault status sent before the valve took the reset may
+/// still come; past this, a fault status is the reset not taking.
+const RESET_SETTLE_NS: u64 = 50_000_000;
+/// While the master drives the valve, a status answers every SYNC: none
+/// for this long is a valve that stopped answering (this computer's own
+/// stalls reach 33 ms).
+pub const STATUS_TIMEOUT_NS: u64 = 100_000_000;
+/// Nothing at all from the valve this long after the master started: no
+/// valve on the bus (a node ID that is not the valve's, a cut cable).
+pub const NEVER_HEARD_NS: u64 = 2_000_000_000;
+
+/// What a reset did, in words, or why it was refused.
+pub type ResetAnswer = std::result::Result<String, String>;
 
 pub struct CanValve {
     port: Box<dyn CanPort>,
     master: ValveMaster,
-    /// Reached Active in this process: from then on a fault is latched.
+    latch: FaultLatch,
+    /// Reached Active in this process: a heartbeat's NMT state other than
+    /// operational is then the valve rebooted or stopped under the loop.
     was_active: bool,
-    fault: Option<ValveFault>,
+    /// A reset's frames went out at this time: fault statuses are taken as
+    /// the old fault's until the valve reports a state without one, or
+    /// [`RESET_SETTLE_NS`] passed.
+    reset_at_ns: Option<u64>,
+    resets: u32,
+    opened_ns: u64,
+    /// Anything from the valve (heartbeat, status, EMCY, SDO) since start.
+    heard: bool,
+    /// The set point the valve was last sent while Active and driven.
+    following: Option<f64>,
+    spool: SpoolWatch,
     pub bad_frames: u64,
 }
 
 impl CanValve {
-    pub fn open(bus: &Bus, profile: &Profile) -> Result<Self> {
+    pub fn open(bus: &Bus, profile: &Profile, latch: FaultLatch) -> Result<Self> {
         let master = ValveMaster::new(profile);
         let node = master.node();
         let filters = [
             Filter::exact(profile.valve_status.cob_id),
             Filter::exact(cob_id::emcy(node)),
             Filter::exact(cob_id::heartbeat(node)),
+            Filter::exact(cob_id::sdo_response(node)),
         ];
         let port = open_port(bus, profile, &filters).context("the valve's CAN bus")?;
-        for frame in master.start_frames() {
-            port.send(&frame)
-                .context("starting the valve node (heartbeat by SDO, NMT)")?;
-        }
+        port.send(&master.start_frame())
+            .context("starting the valve node (NMT)")?;
         Ok(Self {
             port,
             master,
+            latch,
             was_active: false,
-            fault: None,
+            reset_at_ns: None,
+            resets: 0,
+            opened_ns: clock::now_ns(),
+            heard: false,
+            following: None,
+            spool: SpoolWatch::new(profile.valve_spool_tolerance, profile.valve_spool_hold_ms),
             bad_frames: 0,
         })
+    }
+
+    /// Latches a fault: written down first, then acted on (neutral, hold).
+    fn latch(&mut self, code: u32, meaning: String) -> Result<()> {
+        self.latch.latch(code, meaning)
+    }
+
+    fn settling(&self, now_ns: u64) -> bool {
+        self.reset_at_ns
+            .is_some_and(|t| now_ns.saturating_sub(t) < RESET_SETTLE_NS)
     }
 
     /// Takes what the valve said since the last call.
     fn listen(&mut self) -> Result<()> {
         while let Some(received) = self.port.receive()? {
+            if let Some((code, meaning)) = received.frame.bus_fault() {
+                self.latch(u32::from(code), meaning.to_owned())?;
+                continue;
+            }
             let Ok(what) = self.master.on_frame(&received.frame, received.time_ns) else {
                 self.bad_frames += 1;
                 continue;
             };
+            self.heard |= what != ValveFrame::Other;
+            if let ValveFrame::Status(_) = what {
+                if let Some(fault) = self
+                    .spool
+                    .on_status(self.following, self.master.actual(), received.time_ns)
+                {
+                    self.latch(fault_code::SPOOL, fault.to_string())?;
+                }
+            }
             match what {
                 ValveFrame::Heartbeat(state) if state != NmtState::Operational => {
                     if self.was_active {
-                        // Rebooted or stopped under us: its state is gone.
-                        self.fault.get_or_insert(ValveFault::NotOperational(state));
-                    } else {
-                        // Missed its start (or booted after it): again.
-                        for frame in self.master.start_frames() {
-                            self.port.send(&frame).context("starting the valve node again")?;
-                        }
+                        self.latch(
+                            fault_code::HEARTBEAT,
+                            format!("the valve's heartbeat says {}: it rebooted or stopped", state.name()),
+                        )?;
+                    } else if state == NmtState::BootUp || state == NmtState::PreOperational {
+                        // Missed its start (or booted after it): again,
+                        // its settings included.
+                        self.master.restart();
+                        self.port
+                            .send(&self.master.start_frame())
+                            .context("starting the valve node again")?;
                     }
                 }
-                ValveFrame::Status(DeviceState::Active) => self.was_active = true,
-                ValveFrame::Status(state) if self.was_active && state.is_fault() => {
-                    self.fault.get_or_insert(ValveFault::State(state));
+                ValveFrame::Status(DeviceState::Active) => {
+                    self.was_active = true;
+                    self.reset_at_ns = None;
                 }
-                ValveFrame::Emergency(e) if self.was_active && e.code != 0 => {
-                    self.fault.get_or_insert(ValveFault::Emergency(e));
+                ValveFrame::Status(state) if state.is_fault() && !self.settling(received.time_ns) => {
+                    let when = if self.was_active {
+                        ""
+                    } else {
+                        " at bring-up (faulted before)"
+                    };
+                    self.latch(
+                        fault_code::STATE | u32::from(state.status_word()),
+                        format!("the valve reports {}{when}", state.name()),
+                    )?;
+                }
+                ValveFrame::Status(state) if state.is_fault() => {}
+                ValveFrame::Status(_) => self.reset_at_ns = None,
+                ValveFrame::Emergency(e) if e.code != 0 => {
+                    self.latch(u32::from(e.code), emergency_meaning(&e))?;
                 }
                 _ => {}
             }
         }
-        if self.was_active && self.master.lost(clock::now_ns()) {
-            self.fault.get_or_insert(ValveFault::HeartbeatLost);
+        let now = clock::now_ns();
+        if self.was_active && self.master.lost(now) {
+            self.latch(fault_code::HEARTBEAT, "the valve's heartbeat stopped".to_owned())?;
+        }
+        if !self.heard && now.saturating_sub(self.opened_ns) > NEVER_HEARD_NS {
+            self.latch(
+                fault_code::NEVER_HEARD,
+                format!(
+                    "nothing heard from the valve (node {:#04x}) in {} s since start",
+                    self.master.node(),
+                    NEVER_HEARD_NS / 1_000_000_000
+                ),
+            )?;
+        }
+        if let (Some(_), Some(status_ns)) = (self.following, self.master.status_time_ns()) {
+            let silent_ns = now.saturating_sub(status_ns);
+            if silent_ns > STATUS_TIMEOUT_NS {
+                self.latch(
+                    fault_code::STATUS_MISSING,
+                    format!(
+                        "no status from the valve for {} ms while it was driven",
+                        silent_ns / 1_000_000
+                    ),
+                )?;
+            }
+        }
+        if let Some(e) = self.master.settings_failed() {
+            let meaning = e.to_string();
+            self.latch(fault_code::SETTING, meaning)?;
         }
         Ok(())
     }
 
-    /// Sends `command` (neutral unless the valve is Active and `drive` is
-    /// set, and always once a fault is latched), with the next bring-up
-    /// step while the valve is not yet Active.
-    pub fn drive(&mut self, command: f64, drive: bool) -> Result<()> {
+    /// Sends `command` (neutral unless the valve is Active, `drive` is
+    /// set and no fault is latched), with the next bring-up step while the
+    /// valve is not yet Active. Returns whether the valve applies it.
+    pub fn drive(&mut self, command: f64, drive: bool) -> Result<bool> {
         self.listen()?;
-        let command = if drive && self.fault.is_none() { command } else { 0.0 };
-        let set_point = self.master.set_point_frame(command)?;
+        let latched = self.latch.latched().is_some();
+        let applied = drive && !latched && self.master.active();
+        self.following = applied.then(|| hydractl_can::valve::spool_position(hydractl_can::valve::set_point(command)));
+        let set_point = self.master.set_point_frame(if applied { command } else { 0.0 })?;
         self.port.send(&set_point).context("sending the valve's set point")?;
-        // Brought up for the machine's readings only: not by the neutral of
-        // a start or an end, not for the simulated plant.
-        if self.fault.is_none() && drive {
+        if let Some(request) = self.master.setting_frame(clock::now_ns()) {
+            self.port.send(&request).context("setting the valve's timeout by SDO")?;
+        }
+        if latched {
+            // A valve still Active under a fault only the master saw.
+            if self.master.active() {
+                let hold = self.master.hold_frame()?;
+                self.port.send(&hold).context("holding the valve")?;
+            }
+        } else if drive {
+            // Brought up for the machine's readings only: not by the
+            // neutral of a start or an end, not for the simulated plant.
             if let Some(control) = self.master.bring_up_frame()? {
                 self.port.send(&control).context("bringing the valve up")?;
             }
         }
-        Ok(())
+        Ok(applied)
+    }
+
+    /// A person's reset of the latched fault. Refused when nothing is
+    /// latched, or the valve needs service; `at_neutral` is the caller's
+    /// judgement of the command (the valve is driven from neutral after).
+    pub fn reset(&mut self, serviced: bool) -> Result<ResetAnswer> {
+        let now = clock::unix_now_s();
+        let fault = match self.latch.may_reset(serviced, now) {
+            Ok(fault) => fault,
+            Err(refusal) => return Ok(Err(refusal.to_string())),
+        };
+        // Written down before the edge goes out: a crash between the two
+        // leaves the valve faulted (safe), never reset and still latched.
+        self.latch.reset(serviced, now)?;
+        for frame in self.master.reset_frames()? {
+            self.port.send(&frame).context("sending the fault reset")?;
+        }
+        self.master.restart();
+        self.reset_at_ns = Some(clock::now_ns());
+        self.was_active = false;
+        self.resets += 1;
+        Ok(Ok(format!(
+            "reset {} ({}), latched {:.1} s ago; the valve is brought up again from neutral",
+            fault_code_name(fault.code),
+            fault.meaning,
+            (now - fault.since_unix_s).max(0.0)
+        )))
     }
 
     /// Neutral, and the valve to hold: the process is leaving.
@@ -133,15 +255,32 @@ impl CanValve {
         Ok(())
     }
 
-    pub fn fault(&self) -> Option<ValveFault> {
-        self.fault
+    pub fn latched(&self) -> Option<&LatchedFault> {
+        self.latch.latched()
     }
 
     pub fn active(&self) -> bool {
         self.master.active()
     }
 
+    /// The device's state in words.
+    pub fn state_name(&self) -> &'static str {
+        self.master.state().map_or("not heard", DeviceState::name)
+    }
+
+    pub fn resets(&self) -> u32 {
+        self.resets
+    }
+
     pub fn emcys(&self) -> u64 {
         self.master.emcys()
     }
+
+    pub fn latch_path(&self) -> &std::path::Path {
+        self.latch.path()
+    }
+}
+
+fn emergency_meaning(e: &Emergency) -> String {
+    format!("EMCY {:#06x}: {}", e.code, e.describe())
 }

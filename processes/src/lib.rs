@@ -20,6 +20,7 @@ pub mod process;
 pub mod recording;
 pub mod shadow;
 pub mod supervisor;
+pub mod valve_latch;
 
 #[derive(Parser, Debug)]
 pub struct ProcessArgs {

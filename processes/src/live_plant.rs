@@ -224,9 +224,14 @@ pub fn run(kind: PlantKind) -> Result<()> {
             next_tick += period;
             continue;
         }
-        let neutral_for = without_command
-            .saturating_sub(amplifier_timeout)
-            .min(u64::from(u32::MAX)) as u32;
+        // The simulated amplifier's figure, or the machine's valve's own word.
+        let neutral_for = match &body {
+            Body::Can(can) => can
+                .valve_held_for_ns()
+                .map_or(0, |held| (held / period.as_nanos().max(1) as u64).max(1)),
+            Body::Simulated { .. } => without_command.saturating_sub(amplifier_timeout),
+        }
+        .min(u64::from(u32::MAX)) as u32;
         readings.publish(body.read(seq, late_commands, source_code, neutral_for)?)?;
         // The machine on CAN does not wait for its valve: the next SYNC is
         // due at the next period, whatever the command does.

@@ -1,6 +1,8 @@
 //! Helpers for tests that start the real processes: where the binaries
 //! are, a run under its own iceoryx2 prefix, and waiting on its status.
 
+pub mod can;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Mutex, MutexGuard};
@@ -31,8 +33,17 @@ pub fn binary_dir() -> PathBuf {
     exe.parent().and_then(Path::parent).expect("target dir").to_path_buf()
 }
 
+/// `hydractl`, keeping what a run must keep across restarts (the valve's
+/// latched fault) under [`state_dir`], a prefix's folder each.
 pub fn hydractl() -> Command {
-    Command::new(binary_dir().join("hydractl"))
+    let mut command = Command::new(binary_dir().join("hydractl"));
+    command.env("HYDRACTL_STATE_DIR", state_dir());
+    command
+}
+
+/// Where the tests' runs keep their state, one folder per prefix below.
+pub fn state_dir() -> PathBuf {
+    std::env::temp_dir().join("hydractl-test-state")
 }
 
 /// A run scope of a test's own, whose files are removed when it is dropped,
@@ -50,6 +61,7 @@ impl std::ops::Deref for ScopeGuard {
 impl Drop for ScopeGuard {
     fn drop(&mut self) {
         let _ = self.0.clean_stale();
+        let _ = std::fs::remove_dir_all(state_dir().join(self.0.prefix()));
     }
 }
 
@@ -58,6 +70,8 @@ pub fn unique_scope(test: &str) -> ScopeGuard {
     let prefix = format!("t{}_{}_", std::process::id() % 100_000, test);
     let scope = RunScope::new(&prefix).expect("valid prefix");
     scope.remove_all_files().expect("clean start");
+    // What a crashed run of the same prefix latched is not this test's.
+    let _ = std::fs::remove_dir_all(state_dir().join(scope.prefix()));
     ScopeGuard(scope)
 }
 

@@ -7,6 +7,7 @@
 //! valve's electronics held since the last event. The sensors sample the
 //! state at the SYNC (noise and quantization their own); the valve follows
 //! its set point only when Active and falls to hold when it stops coming.
+//! `[machine.silent_node]` and `[machine.stuck_spool]` make one misbehave.
 
 use std::time::{Duration, Instant};
 
@@ -48,6 +49,12 @@ fn main() -> Result<()> {
     let (mut plant, mut sensors) = build_plant(&physics, &[]).context("ecus: the rotator")?;
     let step_ns = (physics.timing.integration_step() * 1e9).round().max(1.0) as u64;
     let silent = started.config.machine.as_ref().and_then(|m| m.silent_node);
+    let stuck_after_ns = started
+        .config
+        .machine
+        .as_ref()
+        .and_then(|m| m.stuck_spool)
+        .map(|s| (s.after_s * 1e9) as u64);
     let port = VirtualCanPort::open(&started.bus, &profile.interface, &[])?;
 
     let mut valve = ValveEcu::new(&profile);
@@ -59,6 +66,15 @@ fn main() -> Result<()> {
     let started_ns = clock::now_ns();
     let silent_from_ns = silent.map(|s| (s.node, started_ns + (s.after_s * 1e9) as u64));
     let mut integrated_ns = started_ns;
+    // The spool's command as its electronics hold it; stuck, where it stuck.
+    let mut stuck_at: Option<f64> = None;
+    let mut spool_command = |valve: &ValveEcu, now_ns: u64| {
+        if stuck_after_ns.is_some_and(|after| now_ns >= started_ns + after) {
+            *stuck_at.get_or_insert(valve.spool_command())
+        } else {
+            valve.spool_command()
+        }
+    };
     let mut failure = None;
     let next_tick = std::cell::Cell::new(Instant::now());
     // The nodes stand in for a machine's own electronics, which a busy
@@ -84,7 +100,8 @@ fn main() -> Result<()> {
                 };
                 while let Some(received) = port.receive()? {
                     let now_ns = clock::now_ns();
-                    integrate_to(&mut plant, &mut integrated_ns, step_ns, now_ns, valve.spool_command());
+                    let command = spool_command(&valve, now_ns);
+                    integrate_to(&mut plant, &mut integrated_ns, step_ns, now_ns, command);
                     let frame: Frame = received.frame;
                     if is_sync(&frame, profile.sync_cob_id) {
                         let state = plant.state();
@@ -106,7 +123,8 @@ fn main() -> Result<()> {
                 let now = Instant::now();
                 if now >= next_tick.get() {
                     let now_ns = clock::now_ns();
-                    integrate_to(&mut plant, &mut integrated_ns, step_ns, now_ns, valve.spool_command());
+                    let command = spool_command(&valve, now_ns);
+                    integrate_to(&mut plant, &mut integrated_ns, step_ns, now_ns, command);
                     let mut out = Outbox::default();
                     valve.tick(now_ns, &mut out);
                     send(profile.valve, &out, now_ns)?;

@@ -4,7 +4,8 @@
 //! it to every station on `hydractl/can/<interface>/rx` when its last bit
 //! has crossed. The config's `[can]` table names the bus and its bitrate,
 //! and `[can.faults]` what the wire does wrong and when (a COB-ID's frames
-//! delayed, transmissions destroyed by error frames), to try the stack.
+//! delayed, transmissions destroyed by error frames, the bus off), to try
+//! the stack.
 
 use std::time::{Duration, Instant};
 
@@ -49,13 +50,22 @@ pub fn run() -> Result<()> {
             hydractl_bus::guarded(&mut failure, || -> Result<()> {
                 let mut wire = wire_cell.borrow_mut();
                 if let Some(f) = &faults {
-                    let since_s = clock::now_ns().saturating_sub(started_ns) as f64 * 1e-9;
+                    let now = clock::now_ns();
+                    let since_s = now.saturating_sub(started_ns) as f64 * 1e-9;
                     let due = since_s >= f.after_s && f.until_s.is_none_or(|u| since_s < u);
+                    // What every station's controller reports of the bus.
+                    let mut report = None;
                     if due && !faults_on {
                         wire.delay(f.delay_cob_id.map(|id| (id, u64::from(f.delay_us) * 1000)));
                         wire.corrupt(f.error_frames);
+                        report = f.bus_off.then(|| wire.go_bus_off());
                     } else if !due && faults_on {
                         wire.delay(None);
+                        report = f.bus_off.then(|| wire.restart());
+                    }
+                    if let Some(frame) = report {
+                        delivered += 1;
+                        rx.publish(frame_sample(&frame, delivered, now, u32::MAX))?;
                     }
                     faults_on = due;
                 }

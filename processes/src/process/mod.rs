@@ -11,3 +11,4 @@ pub mod sensor;
 pub mod shadow;
 pub mod torque;
 pub mod valve;
+mod valve_desk;

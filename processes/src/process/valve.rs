@@ -8,10 +8,13 @@ use std::cell::Cell;
 use std::time::{Duration, Instant};
 
 use crate::can_valve::CanValve;
+use crate::valve_latch::{latch_path, FaultLatch};
 use anyhow::{Context, Result};
 use hydractl_bus::{clock, run_until, Inlet, Outlet, Reader, Wake};
 use hydractl_samples::{fault, service, source, valid, SensorSample, TorqueSample, ValveSample};
 use hydractl_stages::{ValveFaults, ValveStage};
+
+use super::valve_desk::ValveDesk;
 
 /// Readings whose source is remembered: more than the guard's age.
 const SOURCES: usize = 16;
@@ -28,7 +31,7 @@ enum Device {
 /// The valve device and the valve's published state, driven together:
 /// what the device is told is what the loop sees. Dropped, it drives
 /// neutral, whatever ended the process's loop.
-struct Actuator {
+pub(super) struct Actuator {
     device: Device,
     /// The source of each of the last readings, by sequence number: a
     /// command drives the machine's valve only if the reading it answers
@@ -43,38 +46,54 @@ struct Actuator {
     newest: SensorSample,
     /// The last thing driven was [`Actuator::off`].
     is_off: bool,
+    /// The command the loop last asked of the valve, before the guards.
+    pub(super) last_requested: f64,
 }
 
 impl Actuator {
-    fn drive(&mut self, mut sample: ValveSample) -> Result<()> {
+    /// Drives the device and publishes what it does. Returns whether the
+    /// command was applied: false when the machine's valve holds neutral
+    /// (not Active, or a fault latched), so the shaper starts from there.
+    fn drive(&mut self, mut sample: ValveSample) -> Result<bool> {
         // The device first: the valve is what moves the load.
-        let mut device_fault = None;
+        let mut applied = true;
         if let Device::Can(valve) = &mut self.device {
             let answered = self.sources[sample.sensor_seq as usize % SOURCES];
             let from_machine = self.newest.source == source::MACHINE
                 && answered == (sample.sensor_seq, source::MACHINE)
                 && sample.faults & fault::OFF == 0;
-            valve.drive(sample.command, from_machine)?;
+            let sent = valve.drive(sample.command, from_machine)?;
             self.last_sent = (sample.command, from_machine);
             self.last_sent_at = Instant::now();
-            device_fault = valve.fault();
             // What the machine's valve does is what is published: neutral
-            // until it reports Active.
-            if from_machine && !valve.active() {
+            // until it reports Active, and while a fault is latched.
+            if from_machine && !sent {
                 sample.command = 0.0;
+                applied = false;
+                if valve.latched().is_some() {
+                    sample.faults |= fault::DEVICE;
+                }
             }
-            if device_fault.is_some() {
-                sample.command = 0.0;
-                sample.faults |= fault::DEVICE;
-            }
+        }
+        if sample.requested.is_finite() {
+            self.last_requested = sample.requested;
         }
         self.is_off = sample.faults & fault::OFF != 0;
         self.out.publish(sample)?;
-        match device_fault {
-            // Published first, so that the loop and the recording see why.
-            Some(why) => anyhow::bail!("valve: {why}; neutral sent, ending so that the valve is brought up afresh"),
-            None => Ok(()),
+        Ok(applied)
+    }
+
+    /// The machine's valve, when the loop drives one.
+    pub(super) fn can_valve(&mut self) -> Option<&mut CanValve> {
+        match &mut self.device {
+            Device::Can(valve) => Some(valve),
+            Device::Simulated => None,
         }
+    }
+
+    /// Whether the loop's newest reading is the machine's.
+    pub(super) fn on_machine(&self) -> bool {
+        self.newest.source == source::MACHINE
     }
 
     /// A reading arrived: its source noted.
@@ -92,9 +111,6 @@ impl Actuator {
             }
             valve.drive(self.last_sent.0, self.last_sent.1)?;
             self.last_sent_at = Instant::now();
-            if let Some(why) = valve.fault() {
-                anyhow::bail!("valve: {why}; neutral sent, ending so that the valve is brought up afresh");
-            }
         }
         Ok(())
     }
@@ -105,11 +121,11 @@ impl Actuator {
         if let Device::Can(valve) = &mut self.device {
             valve.hold()?;
         }
-        off
+        off.map(|_| ())
     }
 
     /// Neutral, answering no reading: at start and at the end.
-    fn off(&mut self) -> Result<()> {
+    fn off(&mut self) -> Result<bool> {
         self.drive(ValveSample {
             sensor_seq: self.newest.sensor_seq,
             sensor_time_ns: self.newest.sensor_time_ns,
@@ -199,10 +215,12 @@ pub fn run() -> Result<()> {
     let device = match &started.config.can {
         Some(can) => {
             let profile = can.resolve().context("valve: [can]")?;
-            Device::Can(Box::new(CanValve::open(bus, &profile)?))
+            let latch = FaultLatch::open(&latch_path(bus.scope().prefix(), &profile.interface, profile.valve))?;
+            Device::Can(Box::new(CanValve::open(bus, &profile, latch)?))
         }
         None => Device::Simulated,
     };
+    let mut desk = ValveDesk::open(bus, matches!(device, Device::Can(_)))?;
     let mut actuator = Actuator {
         device,
         sources: [(u64::MAX, source::SIMULATION); SOURCES],
@@ -211,6 +229,7 @@ pub fn run() -> Result<()> {
         out: Outlet::open(bus, service::VALVE)?,
         newest: SensorSample::default(),
         is_off: false,
+        last_requested: 0.0,
     };
     actuator.off().context("valve: driving neutral at start")?;
     let silence_timeout = Duration::from_secs_f64(started.config.control.valve_guard.silence_timeout_ms / 1000.0);
@@ -272,6 +291,7 @@ pub fn run() -> Result<()> {
                         })
                 });
                 timer.woke(wake == Wake::Tick);
+                desk.look(&mut actuator)?;
                 match decision {
                     None if wake == Wake::Tick => actuator.refresh(tick)?,
                     None => {}
@@ -281,7 +301,7 @@ pub fn run() -> Result<()> {
                         if faults == ValveFaults::default() {
                             timer.answered(sensor_time_ns);
                         }
-                        actuator.drive(ValveSample {
+                        let applied = actuator.drive(ValveSample {
                             sensor_seq: seq,
                             sensor_time_ns,
                             stage_time_ns: clock::now_ns(),
@@ -290,6 +310,11 @@ pub fn run() -> Result<()> {
                             faults: encode(faults),
                             variant,
                         })?;
+                        // The valve held neutral: the next command ramps
+                        // from there, not from what the shaper had.
+                        if !applied {
+                            stage.held_at_neutral();
+                        }
                     }
                 }
                 valve_clock.set(timer);

@@ -16,6 +16,8 @@ mod wait;
 
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};
 pub use doorbell::{Doorbell, Rung};
+/// What a command's request and reply must be: plain data iceoryx2 copies.
+pub use iceoryx2::prelude::ZeroCopySend;
 pub use outlet::{Inlet, Outlet, PublisherWatch, Reader, Wakeup, CAN_RX_MAX_BUFFER};
 pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{

@@ -138,6 +138,12 @@ pub const FACTORY_HEARTBEAT_MS: u16 = 1000;
 
 /// Object 0x1017: the heartbeat producer time, ms (UNSIGNED16).
 pub const HEARTBEAT_PRODUCER: u16 = 0x1017;
+/// Object 0x1400 + n − 1: RPDO n's communication parameters.
+pub const RPDO_COMMUNICATION: u16 = 0x1400;
+/// Its sub-index 5, the event timer: for an RPDO, CiA 301's deadline
+/// monitoring (no PDO for this long: EMCY 0x8250, and the device's fault
+/// reaction), ms (UNSIGNED16).
+pub const RPDO_EVENT_TIMER: u8 = 5;
 /// SDO abort: the object does not exist in the object dictionary.
 const NO_SUCH_OBJECT: u32 = 0x0602_0000;
 
@@ -166,6 +172,12 @@ pub struct ValveEcu {
     set_point: i16,
     last_set_point_ns: Option<u64>,
     rpdo_timeout_ns: u64,
+    /// The set point's RPDO number (1 to 4): its timer is object
+    /// 0x1400 + number − 1, sub-index 5.
+    set_point_rpdo: u8,
+    /// Whether the master may write the timeout by SDO (a valve whose
+    /// timeout only the vendor's tool sets refuses).
+    timeout_settable: bool,
     /// The spool's position, ±16384, from the physics.
     actual: i16,
     emcys: u64,
@@ -185,6 +197,8 @@ impl ValveEcu {
             set_point: 0,
             last_set_point_ns: None,
             rpdo_timeout_ns: u64::from(profile.valve_rpdo_timeout_ms) * 1_000_000,
+            set_point_rpdo: profile.valve_set_point_rpdo,
+            timeout_settable: true,
             actual: 0,
             emcys: 0,
         }
@@ -192,6 +206,18 @@ impl ValveEcu {
 
     pub fn state(&self) -> DeviceState {
         self.dsm.state()
+    }
+
+    /// A valve whose timeout only the vendor's tool sets, at `timeout_ms`:
+    /// it refuses the master's SDO write and reads back its own value.
+    pub fn with_fixed_timeout(mut self, timeout_ms: u16) -> Self {
+        self.timeout_settable = false;
+        self.rpdo_timeout_ns = u64::from(timeout_ms) * 1_000_000;
+        self
+    }
+
+    fn set_point_rpdo_object(&self) -> u16 {
+        RPDO_COMMUNICATION + u16::from(self.set_point_rpdo) - 1
     }
 
     pub fn nmt_state(&self) -> NmtState {
@@ -323,6 +349,9 @@ impl ValveEcu {
                     (valve_object::STATUS_WORD, 0) => Some(u32::from(self.dsm.state().status_word())),
                     (valve_object::DEVICE_MODE, 0) => Some(u32::from(self.device_mode_bus)),
                     (valve_object::ACTUAL_VALUE, 1) => Some(u32::from(self.actual as u16)),
+                    (index, RPDO_EVENT_TIMER) if index == self.set_point_rpdo_object() => {
+                        Some((self.rpdo_timeout_ns / 1_000_000) as u32)
+                    }
                     _ => None,
                 };
                 match value {
@@ -346,6 +375,10 @@ impl ValveEcu {
                 }
                 (valve_object::DEVICE_MODE, 0) => {
                     self.device_mode_bus = value[0] == valve_object::DEVICE_MODE_BUS;
+                    SdoResponse::Downloaded { index, sub }
+                }
+                (index, RPDO_EVENT_TIMER) if index == self.set_point_rpdo_object() && self.timeout_settable => {
+                    self.rpdo_timeout_ns = u64::from(u16::from_le_bytes([value[0], value[1]])) * 1_000_000;
                     SdoResponse::Downloaded { index, sub }
                 }
                 _ => SdoResponse::Aborted {
@@ -591,14 +624,13 @@ mod tests {
         // The status answers the SYNC, which wins arbitration over the
         // control word: it lags a step, and the master repeats its word
         // until the status confirms it.
-        let mut last = 0;
         for _ in 0..10 {
             let state = bench.status().expect("status");
             if state == DeviceState::Active {
                 break;
             }
-            last = next_control_word(state, last);
-            let frames = [control(&bench.profile, last), set_point(&bench.profile, 0.0), sync];
+            let word = next_control_word(state).expect("no fault");
+            let frames = [control(&bench.profile, word), set_point(&bench.profile, 0.0), sync];
             bench.step(&frames);
         }
         assert_eq!(bench.status(), Some(DeviceState::Active));

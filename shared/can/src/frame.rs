@@ -38,6 +38,33 @@ pub enum CanError {
     BadNode { node: u8 },
     #[error("PDO mapping: {reason}")]
     Mapping { reason: String },
+    #[error("node {node:#04x}, object {index:#06x}:{sub} ({what}) = {value}: {reason}")]
+    Setting {
+        node: u8,
+        index: u16,
+        sub: u8,
+        what: &'static str,
+        value: String,
+        reason: String,
+    },
+}
+
+/// SocketCAN's error classes (`linux/can/error.h`): the ID bits of an
+/// error frame.
+pub mod error_class {
+    /// `CAN_ERR_CRTL`: the controller's state; `data[1]` says which.
+    pub const CONTROLLER: u32 = 0x0004;
+    /// `CAN_ERR_PROT`: a protocol violation (a corrupted transmission).
+    pub const PROTOCOL: u32 = 0x0008;
+    /// `CAN_ERR_ACK`: nobody acknowledged a transmission.
+    pub const NO_ACK: u32 = 0x0020;
+    /// `CAN_ERR_BUSOFF`: the controller left the bus.
+    pub const BUS_OFF: u32 = 0x0040;
+    /// `CAN_ERR_RESTARTED`: the controller is back after bus-off.
+    pub const RESTARTED: u32 = 0x0100;
+    /// `data[1]` of [`CONTROLLER`]: error-passive on receive, on transmit.
+    pub const CONTROLLER_RX_PASSIVE: u8 = 0x10;
+    pub const CONTROLLER_TX_PASSIVE: u8 = 0x20;
 }
 
 impl Frame {
@@ -89,6 +116,29 @@ impl Frame {
             len: 8,
             reserved: [0; 2],
             data,
+        }
+    }
+
+    /// What an error frame says of the bus, when it is more than a
+    /// corrupted transmission the controller sends again (which CAN does
+    /// by design): the controller off the bus, error-passive, or no other
+    /// node acknowledging. The code is CiA 301's EMCY code for it.
+    pub fn bus_fault(&self) -> Option<(u16, &'static str)> {
+        if !self.is_error() {
+            return None;
+        }
+        let passive = error_class::CONTROLLER_RX_PASSIVE | error_class::CONTROLLER_TX_PASSIVE;
+        if self.id & error_class::BUS_OFF != 0 {
+            Some((0x8140, "the CAN controller went bus-off"))
+        } else if self.id & error_class::CONTROLLER != 0 && self.data[1] & passive != 0 {
+            Some((0x8120, "the CAN controller is error-passive"))
+        } else if self.id & error_class::NO_ACK != 0 {
+            Some((
+                0x8100,
+                "no node acknowledged a transmission (a cut bus, or nobody on it)",
+            ))
+        } else {
+            None
         }
     }
 
@@ -162,5 +212,29 @@ mod tests {
             f.expect_len(4, "TPDO1").expect_err("short").to_string(),
             "COB-ID 0x181 (TPDO1): 2 data bytes, expected 4"
         );
+    }
+
+    #[test]
+    fn error_frames_that_are_bus_faults_are_told_from_a_retried_transmission() {
+        assert_eq!(Frame::error(error_class::PROTOCOL, [0; 8]).bus_fault(), None);
+        assert_eq!(
+            Frame::error(error_class::BUS_OFF, [0; 8]).bus_fault().map(|f| f.0),
+            Some(0x8140)
+        );
+        let passive = [0, error_class::CONTROLLER_TX_PASSIVE, 0, 0, 0, 0, 0, 0];
+        assert_eq!(
+            Frame::error(error_class::CONTROLLER, passive).bus_fault().map(|f| f.0),
+            Some(0x8120)
+        );
+        assert_eq!(
+            Frame::error(error_class::CONTROLLER, [0; 8]).bus_fault(),
+            None,
+            "a warning only"
+        );
+        assert_eq!(
+            Frame::error(error_class::NO_ACK, [0; 8]).bus_fault().map(|f| f.0),
+            Some(0x8100)
+        );
+        assert_eq!(Frame::new(0x40, &[]).expect("data frame").bus_fault(), None);
     }
 }

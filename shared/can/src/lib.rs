@@ -13,6 +13,10 @@
 //!   master's heartbeat consumer;
 //! - [`master`]: the master's side: the SYNC producer and PDO consumer,
 //!   and the valve's bring-up, set point and status;
+//! - [`settings`]: a device's settings written by SDO and read back
+//!   before it is trusted (the valve's own timeout, heartbeats);
+//! - [`spool`]: the valve's reported spool position against its set
+//!   point (stuck, wrong sign);
 //! - [`stats`]: a listener's figures of the bus: load, frames per period,
 //!   late and lost PDOs, EMCYs, error frames;
 //! - [`timing`]: how long a frame occupies the bus, stuffing included, and
@@ -30,9 +34,11 @@ mod frame;
 pub mod master;
 pub mod pressure;
 pub mod profile;
+pub mod settings;
+pub mod spool;
 pub mod stats;
 pub mod timing;
 pub mod valve;
 pub mod wire;
 
-pub use frame::{CanError, Frame};
+pub use frame::{error_class, CanError, Frame};

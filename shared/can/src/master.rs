@@ -5,14 +5,17 @@
 //!   starts with a SYNC, gathers the encoder's and transducers' TPDOs that
 //!   answer it, and watches the three nodes' heartbeats; a value that has
 //!   not come is NaN, never the previous period's.
-//! - [`ValveMaster`]: brings the valve up (NMT start, the control-word
-//!   sequence to Active, a fault cleared by R low then high), builds the
-//!   set point RPDO (neutral in every state but Active), and reads the
-//!   valve's status TPDO, EMCYs and heartbeat.
+//! - [`ValveMaster`]: brings the valve up (NMT start, its own timeout and
+//!   heartbeat written by SDO and read back, the control-word sequence to
+//!   Active), builds the set point RPDO (neutral in every state but
+//!   Active), and reads the valve's status TPDO, EMCYs and heartbeat. It
+//!   never clears a fault by itself: [`ValveMaster::reset_frames`] is for a
+//!   person's reset.
 
-use crate::canopen::{self, cob_id, Emergency, NmtCommand, NmtState, NodeId};
-use crate::ecu::{set_heartbeat, HeartbeatWatch};
+use crate::canopen::{self, cob_id, Emergency, NmtCommand, NmtState, NodeId, SdoResponse};
+use crate::ecu::{set_heartbeat, HeartbeatWatch, HEARTBEAT_PRODUCER, RPDO_COMMUNICATION, RPDO_EVENT_TIMER};
 use crate::profile::{Pdo, PressureChannel, Profile};
+use crate::settings::{Setting, SettingsCheck};
 use crate::valve::{self, DeviceState};
 use crate::{CanError, Frame};
 
@@ -209,6 +212,8 @@ pub enum ValveFrame {
     Status(DeviceState),
     Emergency(Emergency),
     Heartbeat(NmtState),
+    /// An answer to the master's SDO request.
+    Setting,
     Other,
 }
 
@@ -219,11 +224,14 @@ pub struct ValveMaster {
     status: Pdo,
     status_word_at: (usize, u8),
     heartbeat: HeartbeatWatch,
-    heartbeat_ms: u16,
+    /// The valve's own timeout and heartbeat, as the master wants them.
+    wanted: [Setting; 2],
+    settings: SettingsCheck<2>,
     state: Option<DeviceState>,
+    /// When the last status came, ns.
+    status_ns: Option<u64>,
     was_ready: bool,
     actual: f64,
-    last_word: u16,
     emcys: u64,
     last_emcy: Option<Emergency>,
     bad_pdos: u64,
@@ -231,6 +239,22 @@ pub struct ValveMaster {
 
 impl ValveMaster {
     pub fn new(profile: &Profile) -> Self {
+        let wanted = [
+            Setting {
+                index: HEARTBEAT_PRODUCER,
+                sub: 0,
+                value: profile.heartbeat_ms,
+                what: "heartbeat producer time",
+                unit: "ms",
+            },
+            Setting {
+                index: RPDO_COMMUNICATION + u16::from(profile.valve_set_point_rpdo) - 1,
+                sub: RPDO_EVENT_TIMER,
+                value: profile.valve_rpdo_timeout_ms,
+                what: "the set point RPDO's timeout, the valve's own guard",
+                unit: "ms",
+            },
+        ];
         Self {
             node: profile.valve,
             set_point: profile.valve_set_point,
@@ -238,11 +262,12 @@ impl ValveMaster {
             status: profile.valve_status,
             status_word_at: profile.valve_status_word_at,
             heartbeat: HeartbeatWatch::new(profile.valve, profile.heartbeat_timeout_ms),
-            heartbeat_ms: profile.heartbeat_ms,
+            wanted,
+            settings: SettingsCheck::new(profile.valve, wanted),
             state: None,
+            status_ns: None,
             was_ready: false,
             actual: f64::NAN,
-            last_word: 0,
             emcys: 0,
             last_emcy: None,
             bad_pdos: 0,
@@ -253,12 +278,26 @@ impl ValveMaster {
         self.node
     }
 
-    /// Its heartbeat producer time by SDO, then NMT start.
-    pub fn start_frames(&self) -> [Frame; 2] {
-        [
-            set_heartbeat(self.node, self.heartbeat_ms),
-            canopen::nmt(NmtCommand::Start, self.node),
-        ]
+    /// NMT start; its settings follow ([`ValveMaster::setting_frame`]).
+    pub fn start_frame(&self) -> Frame {
+        canopen::nmt(NmtCommand::Start, self.node)
+    }
+
+    /// The valve booted again: the settings it had are gone, to be
+    /// written and read back afresh.
+    pub fn restart(&mut self) {
+        self.settings = SettingsCheck::new(self.node, self.wanted);
+    }
+
+    /// The next SDO request of the settings' check, when one is due.
+    pub fn setting_frame(&mut self, now_ns: u64) -> Option<Frame> {
+        self.settings.due(now_ns)
+    }
+
+    /// Why the valve's settings cannot be trusted, once known: it is then
+    /// not to be brought to Active.
+    pub fn settings_failed(&self) -> Option<&CanError> {
+        self.settings.failed()
     }
 
     pub fn on_frame(&mut self, frame: &Frame, now_ns: u64) -> Result<ValveFrame, CanError> {
@@ -271,6 +310,11 @@ impl ValveMaster {
             ));
         }
         let id = frame.id as u16;
+        if id == cob_id::sdo_response(self.node) {
+            let (_, response) = SdoResponse::decode(frame)?;
+            self.settings.on_response(response);
+            return Ok(ValveFrame::Setting);
+        }
         if id == cob_id::emcy(self.node) {
             let (_, emcy) = Emergency::decode(frame)?;
             if emcy.code != canopen::emcy_code::NO_ERROR {
@@ -290,6 +334,7 @@ impl ValveMaster {
             let state = DeviceState::from_status_word(word, self.was_ready);
             self.was_ready |= word & valve::control_word::RESET_FAULT_BIT != 0;
             self.state = Some(state);
+            self.status_ns = Some(now_ns);
             self.actual = valve::spool_position(actual);
             return Ok(ValveFrame::Status(state));
         }
@@ -337,15 +382,30 @@ impl ValveMaster {
         self.set_point.mapping.pack(self.set_point.cob_id, &values[..n])
     }
 
+    /// When the last status came, ns.
+    pub fn status_time_ns(&self) -> Option<u64> {
+        self.status_ns
+    }
+
     /// The control RPDO that moves the valve one step towards Active from
-    /// its last reported state, device mode on the bus; `None` once Active.
+    /// its last reported state, device mode on the bus. `None` once Active,
+    /// before its settings are verified, and in a fault state: the master
+    /// never clears a fault by itself.
     pub fn bring_up_frame(&mut self) -> Result<Option<Frame>, CanError> {
         let state = self.state.unwrap_or(DeviceState::NotReady);
-        if state == DeviceState::Active {
+        if state == DeviceState::Active || !self.settings.verified() {
             return Ok(None);
         }
-        let word = valve::next_control_word(state, self.last_word);
-        self.control_frame(word).map(Some)
+        match valve::next_control_word(state) {
+            Some(word) => self.control_frame(word).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// A person's fault reset: R low, then high, the spool kept at neutral.
+    pub fn reset_frames(&mut self) -> Result<[Frame; 2], CanError> {
+        let [low, high] = valve::RESET_WORDS;
+        Ok([self.control_frame(low)?, self.control_frame(high)?])
     }
 
     /// The control RPDO that holds the spool at neutral (a master leaving).
@@ -354,7 +414,6 @@ impl ValveMaster {
     }
 
     fn control_frame(&mut self, word: u16) -> Result<Frame, CanError> {
-        self.last_word = word;
         let mut values = [0u64; 8];
         let n = self.control.mapping.entries().len();
         values[self.control.slot(self.control.value_at)] = u64::from(word);
@@ -458,45 +517,54 @@ mod tests {
         assert_eq!(master.lost(301 * MS), Some(profile.encoder), "the encoder went silent");
     }
 
-    #[test]
-    fn the_valve_master_brings_the_valve_up_drives_only_when_active_and_recovers_a_fault() {
-        let profile = profile();
-        let mut master = ValveMaster::new(&profile);
-        let mut ecu = ValveEcu::new(&profile);
-        let sync = canopen::sync(profile.sync_cob_id, None);
-        let mut now = 0;
-        // One period: the master's frames, then the SYNC the status answers.
-        let period = |master: &mut ValveMaster, ecu: &mut ValveEcu, frames: &[Frame], now: u64| {
-            let mut out = Outbox::default();
-            ecu.tick(now, &mut out);
-            for f in frames.iter().chain([&sync]) {
-                ecu.on_frame(f, now, &mut out);
-            }
-            for f in out.frames() {
-                master.on_frame(f, now).expect("valve frame");
-            }
-        };
-        let start = master.start_frames();
-        period(&mut master, &mut ecu, &start, now);
-        for _ in 0..6 {
+    /// One period of master and valve: the master's frames (its due SDO
+    /// request first), then the SYNC the status answers.
+    fn valve_period(master: &mut ValveMaster, ecu: &mut ValveEcu, frames: &[Frame], now: u64) {
+        let sync = canopen::sync(profile().sync_cob_id, None);
+        let mut out = Outbox::default();
+        ecu.tick(now, &mut out);
+        let setting = master.setting_frame(now);
+        for f in setting.iter().chain(frames).chain([&sync]) {
+            ecu.on_frame(f, now, &mut out);
+        }
+        for f in out.frames() {
+            master.on_frame(f, now).expect("valve frame");
+        }
+    }
+
+    /// Periods of `command` with the bring-up's steps, up to `periods`.
+    fn bring_up(master: &mut ValveMaster, ecu: &mut ValveEcu, now: &mut u64, command: f64, periods: usize) {
+        for _ in 0..periods {
             if master.active() {
                 break;
             }
-            now += MS;
-            let mut frames = vec![master.set_point_frame(0.5).expect("set point")];
+            *now += MS;
+            let mut frames = vec![master.set_point_frame(command).expect("set point")];
             frames.extend(master.bring_up_frame().expect("control"));
-            period(&mut master, &mut ecu, &frames, now);
+            valve_period(master, ecu, &frames, *now);
         }
+    }
+
+    #[test]
+    fn the_valve_master_verifies_the_valves_guard_brings_it_up_and_never_resets_a_fault_itself() {
+        let profile = profile();
+        let mut master = ValveMaster::new(&profile);
+        let mut ecu = ValveEcu::new(&profile);
+        let mut now = 0;
+        let start = [master.start_frame()];
+        valve_period(&mut master, &mut ecu, &start, now);
+        bring_up(&mut master, &mut ecu, &mut now, 0.5, 12);
         assert_eq!(master.state(), Some(DeviceState::Active));
+        assert!(master.settings_failed().is_none());
         assert_eq!(ecu.spool_command(), 0.0, "neutral until the master saw Active");
         now += MS;
         let frames = [master.set_point_frame(0.5).expect("sp")];
-        period(&mut master, &mut ecu, &frames, now);
+        valve_period(&mut master, &mut ecu, &frames, now);
         assert!((ecu.spool_command() - 0.5).abs() < 1e-3);
         assert!(master.bring_up_frame().expect("none").is_none());
-        // The master is away longer than the RPDO timeout.
+        // The master is away longer than the RPDO timeout it wrote.
         now += 30 * MS;
-        period(&mut master, &mut ecu, &[], now);
+        valve_period(&mut master, &mut ecu, &[], now);
         assert_eq!(master.state(), Some(DeviceState::FaultHold));
         assert_eq!(master.emcys(), 1);
         assert_eq!(
@@ -508,12 +576,34 @@ mod tests {
             [0, 0],
             "neutral while not Active"
         );
-        for _ in 0..6 {
-            now += MS;
-            let mut frames = vec![master.set_point_frame(0.2).expect("set point")];
-            frames.extend(master.bring_up_frame().expect("control"));
-            period(&mut master, &mut ecu, &frames, now);
+        bring_up(&mut master, &mut ecu, &mut now, 0.2, 20);
+        assert_eq!(
+            master.state(),
+            Some(DeviceState::FaultHold),
+            "the master never resets a fault by itself"
+        );
+        // A person's reset: R low then high, and the bring-up goes on.
+        now += MS;
+        let reset = master.reset_frames().expect("reset");
+        valve_period(&mut master, &mut ecu, &reset, now);
+        assert_eq!(master.state(), Some(DeviceState::Hold));
+        bring_up(&mut master, &mut ecu, &mut now, 0.2, 5);
+        assert_eq!(master.state(), Some(DeviceState::Active));
+    }
+
+    #[test]
+    fn a_valve_that_refuses_its_timeout_is_never_brought_to_active() {
+        let profile = profile();
+        let mut master = ValveMaster::new(&profile);
+        let mut ecu = ValveEcu::new(&profile).with_fixed_timeout(100);
+        let mut now = 0;
+        let start = [master.start_frame()];
+        valve_period(&mut master, &mut ecu, &start, now);
+        bring_up(&mut master, &mut ecu, &mut now, 0.5, 30);
+        assert_eq!(master.state(), Some(DeviceState::Init), "not a step towards Active");
+        let e = master.settings_failed().expect("refused").to_string();
+        for part in ["0x10", "0x1400:5", "20 ms", "refused"] {
+            assert!(e.contains(part), "{part} in {e}");
         }
-        assert_eq!(master.state(), Some(DeviceState::Active), "the fault was reset");
     }
 }

@@ -68,6 +68,9 @@ pub struct WireFaults {
     /// Transmissions destroyed by an error frame (and sent again) at `after_s`.
     #[serde(default)]
     pub error_frames: u32,
+    /// The bus goes off from `after_s` (nothing crosses) until `until_s`.
+    #[serde(default)]
+    pub bus_off: bool,
 }
 
 impl Default for CanConfig {
@@ -108,6 +111,12 @@ pub struct ValveNode {
     /// The valve's own guard: with no set point for this long it faults to
     /// hold (spool neutral) and sends an EMCY, ms.
     pub rpdo_timeout_ms: u16,
+    /// The spool's reported position (0x6301:1) may be this far from its
+    /// set point (a share of its travel) for `spool_hold_ms` before it is
+    /// a fault (stuck, or a wrong sign): room for the spool's own lag and
+    /// ringing after a step.
+    pub spool_tolerance: f64,
+    pub spool_hold_ms: u32,
     /// Receives the set point (0x6300:1).
     pub set_point: PdoConfig,
     /// Receives the control word (0x6040) and device mode (0x6042).
@@ -121,6 +130,8 @@ impl Default for ValveNode {
         Self {
             node: 0x10,
             rpdo_timeout_ms: 20,
+            spool_tolerance: 0.3,
+            spool_hold_ms: 500,
             set_point: PdoConfig {
                 number: 1,
                 cob_id: None,
@@ -277,6 +288,10 @@ pub struct Profile {
     pub pdo_deadline_us: u32,
     pub valve: NodeId,
     pub valve_rpdo_timeout_ms: u16,
+    /// The set point's RPDO number: its timer is the valve's own guard.
+    pub valve_set_point_rpdo: u8,
+    pub valve_spool_tolerance: f64,
+    pub valve_spool_hold_ms: u32,
     pub valve_set_point: Pdo,
     /// `value_at` is the control word's; the device mode follows it.
     pub valve_control: Pdo,
@@ -396,6 +411,15 @@ impl CanConfig {
         if valve.rpdo_timeout_ms == 0 {
             return Err(error(".valve", "rpdo_timeout_ms = 0: the valve's own guard must be on"));
         }
+        if !(valve.spool_tolerance > 0.0 && valve.spool_tolerance <= 1.0) || valve.spool_hold_ms == 0 {
+            return Err(error(
+                ".valve",
+                format!(
+                    "spool_tolerance = {}, spool_hold_ms = {}: a share of the travel in (0, 1] and a time above 0",
+                    valve.spool_tolerance, valve.spool_hold_ms
+                ),
+            ));
+        }
         let encoder_position = pdo(
             ".encoder.position",
             &self.encoder.position,
@@ -427,6 +451,9 @@ impl CanConfig {
             pdo_deadline_us: self.pdo_deadline_us,
             valve: valve.node,
             valve_rpdo_timeout_ms: valve.rpdo_timeout_ms,
+            valve_set_point_rpdo: valve.set_point.number,
+            valve_spool_tolerance: valve.spool_tolerance,
+            valve_spool_hold_ms: valve.spool_hold_ms,
             valve_set_point,
             valve_control,
             valve_status,

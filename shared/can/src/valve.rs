@@ -17,8 +17,9 @@
 //! | fault reaction | 0111 |
 //!
 //! A master keeps R high and steps Init (0x08) → Disabled (0x09) → Hold
-//! (0x0B) → Active (0x0F); to clear a fault it drops R (0x03) and raises
-//! it again (0x0B).
+//! (0x0B) → Active (0x0F). A fault is cleared by R low (0x03) then high
+//! (0x0B): [`RESET_WORDS`], which a master sends only when a person asks
+//! (ISO 13849-1's manual reset): its bring-up stops at a fault.
 
 use crate::CanError;
 
@@ -49,6 +50,36 @@ pub mod control_word {
     pub const ACTIVE: u16 = 0x0F;
     /// R low; the next control word's R raises it and clears the fault.
     pub const FAULT_RESET: u16 = 0x03;
+}
+
+/// The master's own fault codes for a valve, beside the valve's EMCY
+/// codes (16 bits), so that a latched fault has one number either way.
+pub mod fault_code {
+    /// CiA 301's "life guard or heartbeat error": the master's watch.
+    pub const HEARTBEAT: u32 = 0x8130;
+    /// A fault state the valve reports: this, or'ed with its status word.
+    pub const STATE: u32 = 0x1_0000;
+    /// A setting the valve refused or reads back otherwise.
+    pub const SETTING: u32 = 0x2_0000;
+    /// The spool's reported position does not follow the set point.
+    pub const SPOOL: u32 = 0x3_0000;
+    /// No status from the valve while the master drove it.
+    pub const STATUS_MISSING: u32 = 0x4_0000;
+    /// Nothing heard from the valve since the master started.
+    pub const NEVER_HEARD: u32 = 0x5_0000;
+}
+
+/// A latched fault's code as a person reads it: an EMCY's in hex, the
+/// master's own named.
+pub fn fault_code_name(code: u32) -> String {
+    match code {
+        fault_code::SETTING => "a refused setting".to_owned(),
+        fault_code::SPOOL => "a spool off its set point".to_owned(),
+        fault_code::STATUS_MISSING => "a missing status".to_owned(),
+        fault_code::NEVER_HEARD => "a silent valve".to_owned(),
+        c if c & !0xFFFF == fault_code::STATE => format!("fault state {:#06b}", c & 0xF),
+        c => format!("{c:#06x}"),
+    }
 }
 
 /// ±16384 is ±100 % spool travel.
@@ -223,23 +254,23 @@ impl StateMachine {
 }
 
 /// The master's next control word to bring a valve reporting `state` to
-/// Active, given the last word it sent: Init → Disabled → Hold → Active,
-/// and a fault cleared by R low then high.
-pub fn next_control_word(state: DeviceState, last_sent: u16) -> u16 {
+/// Active: Init → Disabled → Hold → Active. `None` in a fault state: the
+/// bring-up stops there, and only [`RESET_WORDS`], sent on a person's
+/// command, clear the fault.
+pub fn next_control_word(state: DeviceState) -> Option<u16> {
     match state {
-        DeviceState::NotReady | DeviceState::Init => control_word::DISABLED,
-        DeviceState::Disabled => control_word::HOLD,
-        DeviceState::Hold | DeviceState::Active => control_word::ACTIVE,
-        DeviceState::FaultReaction => control_word::FAULT_RESET,
-        DeviceState::FaultInit | DeviceState::FaultDisabled | DeviceState::FaultHold => {
-            if last_sent & control_word::RESET_FAULT_BIT != 0 {
-                control_word::FAULT_RESET
-            } else {
-                control_word::HOLD
-            }
+        DeviceState::NotReady | DeviceState::Init => Some(control_word::DISABLED),
+        DeviceState::Disabled => Some(control_word::HOLD),
+        DeviceState::Hold | DeviceState::Active => Some(control_word::ACTIVE),
+        DeviceState::FaultReaction | DeviceState::FaultInit | DeviceState::FaultDisabled | DeviceState::FaultHold => {
+            None
         }
     }
 }
+
+/// The deliberate fault reset: R low, then high (the rising edge), the
+/// spool kept at neutral (Hold).
+pub const RESET_WORDS: [u16; 2] = [control_word::FAULT_RESET, control_word::HOLD];
 
 /// A NaN or out-of-range command is a programming error upstream; the
 /// frame carries neutral, and this names it for the caller's fault count.
@@ -279,11 +310,10 @@ mod tests {
     fn the_bring_up_sequence_is_the_manuals() {
         let mut valve = StateMachine::power_up();
         let mut sent = Vec::new();
-        let mut last = 0;
         while valve.state() != DeviceState::Active && sent.len() < 10 {
-            last = next_control_word(valve.state(), last);
-            sent.push(last);
-            valve.on_control_word(last);
+            let word = next_control_word(valve.state()).expect("no fault on the way");
+            sent.push(word);
+            valve.on_control_word(word);
         }
         assert_eq!(sent, [0x09, 0x0B, 0x0F]);
         assert_eq!(valve.state().status_word(), 0x0F);
@@ -301,16 +331,15 @@ mod tests {
         assert!(!valve.state().follows_set_point());
         // Keeping R high does not clear it.
         assert_eq!(valve.on_control_word(0x0F), DeviceState::FaultHold);
-        // The master's recovery: R low, then high.
-        let mut last = 0x0F;
-        let mut steps = 0;
-        while valve.state() != DeviceState::Active && steps < 10 {
-            last = next_control_word(valve.state(), last);
-            valve.on_control_word(last);
-            steps += 1;
+        // The master's bring-up stops at the fault: it never resets it.
+        assert_eq!(next_control_word(valve.state()), None);
+        // A person's reset: R low, then high; then the bring-up goes on.
+        for word in RESET_WORDS {
+            valve.on_control_word(word);
         }
-        assert_eq!(valve.state(), DeviceState::Active);
-        assert_eq!(steps, 3, "0x03, 0x0B, 0x0F");
+        assert_eq!(valve.state(), DeviceState::Hold, "cleared, spool still at neutral");
+        let next = next_control_word(valve.state()).expect("on to Active");
+        assert_eq!(valve.on_control_word(next), DeviceState::Active);
     }
 
     #[test]

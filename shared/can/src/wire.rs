@@ -17,9 +17,7 @@ const SILENCED: usize = 8;
 /// An error flag (6), its superposition (up to 6) and delimiter (8), and
 /// the intermission (3).
 const ERROR_FRAME_BITS: u32 = 23;
-/// SocketCAN's `CAN_ERR_PROT`: a protocol violation, as a corrupted
-/// transmission is reported.
-pub const ERROR_CLASS_PROTOCOL: u32 = 0x0008;
+pub use crate::frame::error_class::PROTOCOL as ERROR_CLASS_PROTOCOL;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Pending {
@@ -62,6 +60,8 @@ pub struct Wire {
     silenced: [Option<u32>; SILENCED],
     delay: Option<(u16, u64)>,
     corrupt_next: u32,
+    /// Bus-off: nothing crosses until the controllers restart.
+    off: bool,
     counters: WireCounters,
 }
 
@@ -88,6 +88,7 @@ impl Wire {
             silenced: [None; SILENCED],
             delay: None,
             corrupt_next: 0,
+            off: false,
             counters: WireCounters::default(),
         }
     }
@@ -130,8 +131,30 @@ impl Wire {
         self.corrupt_next = self.corrupt_next.saturating_add(count);
     }
 
+    /// The bus goes off (a short, a broken transceiver): what is waiting
+    /// and what is handed over until [`Wire::restart`] is lost. Returns the
+    /// error frame every station's controller reports.
+    pub fn go_bus_off(&mut self) -> Frame {
+        self.off = true;
+        self.counters.lost += self.pending.iter().flatten().count() as u64;
+        self.pending = [None; PENDING];
+        self.on_wire = None;
+        self.counters.error_frames += 1;
+        Frame::error(crate::error_class::BUS_OFF, [0; 8])
+    }
+
+    /// The controllers restart after bus-off; the error frame they report.
+    pub fn restart(&mut self) -> Frame {
+        self.off = false;
+        Frame::error(crate::error_class::RESTARTED, [0; 8])
+    }
+
     /// A station hands a frame to its controller at `now_ns`.
     pub fn submit(&mut self, frame: Frame, station: u32, now_ns: u64) {
+        if self.off {
+            self.counters.lost += 1;
+            return;
+        }
         if self.is_silenced(station) {
             self.counters.silenced += 1;
             return;

@@ -139,6 +139,11 @@ pub struct MachineConfig {
     /// PDOs) this long after the ECUs start, as a cut cable would: for
     /// trying the master's heartbeat watch.
     pub silent_node: Option<SilentNode>,
+    /// On the virtual CAN bus: the valve's spool sticks where it is this
+    /// long after the ECUs start (dirt, a broken pilot stage), while the
+    /// valve goes on reporting its position: for trying the master's spool
+    /// watch.
+    pub stuck_spool: Option<StuckSpool>,
     /// One of its effects changes while it runs, as a wearing valve does:
     /// for trying the shadow model's drift detection.
     pub drift: Option<hydractl_plant::DriftSpec>,
@@ -148,6 +153,12 @@ pub struct MachineConfig {
 #[serde(deny_unknown_fields)]
 pub struct SilentNode {
     pub node: u8,
+    pub after_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StuckSpool {
     pub after_s: f64,
 }
 
@@ -417,9 +428,13 @@ mod tests {
         let late = format!("{DEFAULT_SIM_TOML}\n[can]\npdo_deadline_us = 950\n");
         let e = Config::parse(&late, Path::new("x.toml")).expect_err("no time to answer");
         assert!(e.to_string().contains("pdo_deadline_us = 950"), "{e}");
-        let short = format!("{DEFAULT_SIM_TOML}\n[can.valve]\nrpdo_timeout_ms = 8\n");
-        let e = Config::parse(&short, Path::new("x.toml")).expect_err("shorter than the tick allows");
-        assert!(e.to_string().contains("rpdo_timeout_ms = 8"), "{e}");
+        // Three of the valve process's 5 ms ticks (a 20 ms silence timeout).
+        let short = format!("{DEFAULT_SIM_TOML}\n[can.valve]\nrpdo_timeout_ms = 14\n");
+        let e = Config::parse(&short, Path::new("x.toml")).expect_err("shorter than three ticks");
+        assert!(e.to_string().contains("rpdo_timeout_ms = 14"), "{e}");
+        assert!(e.to_string().contains("three ticks"), "{e}");
+        let three = format!("{DEFAULT_SIM_TOML}\n[can.valve]\nrpdo_timeout_ms = 15\n");
+        Config::parse(&three, Path::new("x.toml")).expect("three ticks are enough");
     }
 
     #[test]

@@ -78,11 +78,15 @@ impl Config {
                 });
             }
         }
-        if let Some(silent) = self.machine.as_ref().and_then(|m| m.silent_node) {
-            if !(silent.after_s.is_finite() && silent.after_s > 0.0) {
+        let machine = self.machine.as_ref();
+        for (table, after_s) in [
+            ("silent_node", machine.and_then(|m| m.silent_node).map(|s| s.after_s)),
+            ("stuck_spool", machine.and_then(|m| m.stuck_spool).map(|s| s.after_s)),
+        ] {
+            if let Some(after_s) = after_s.filter(|a| !(a.is_finite() && *a > 0.0)) {
                 return Err(ConfigError::Parse {
                     path: path.to_owned(),
-                    message: format!("[machine.silent_node] after_s must be positive, got {}", silent.after_s),
+                    message: format!("[machine.{table}] after_s must be positive, got {after_s}"),
                 });
             }
         }
@@ -108,14 +112,17 @@ impl Config {
                     });
                 }
                 let silence_tick_ms = self.control.valve_guard.silence_timeout_ms / 4.0;
-                if silence_tick_ms >= f64::from(profile.valve_rpdo_timeout_ms) / 2.0 {
+                // The one rule for the valve's own timeout (SAFETY.md, H12):
+                // a living valve process sends its set point at least every
+                // tick, so three ticks without one is a dead process.
+                if 3.0 * silence_tick_ms > f64::from(profile.valve_rpdo_timeout_ms) {
                     return Err(ConfigError::Can {
                         path: path.to_owned(),
                         source: hydractl_can::profile::ProfileError {
                             section: ".valve".into(),
                             reason: format!(
                                 "rpdo_timeout_ms = {} is too short for the valve process's {silence_tick_ms} ms tick \
-                                 ([control.valve_guard] silence_timeout_ms / 4), on which it sends its set point again: at least twice the tick",
+                                 ([control.valve_guard] silence_timeout_ms / 4), on which it sends its set point again: at least three ticks",
                                 profile.valve_rpdo_timeout_ms
                             ),
                         },

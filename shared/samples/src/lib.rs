@@ -40,6 +40,10 @@ pub mod service {
     pub const TORQUE: &str = "hydractl/torque";
     /// The valve's state: the command it drives, and its faults.
     pub const VALVE: &str = "hydractl/valve";
+    /// The machine's valve device (on CAN): its state and latched fault.
+    pub const VALVE_DEVICE: &str = "hydractl/valve/device";
+    /// Requests to the valve process (request-response): a fault reset.
+    pub const VALVE_COMMAND: &str = "hydractl/valve/command";
     /// The supervisor's view of every process.
     pub const SUPERVISOR_STATUS: &str = "hydractl/supervisor/status";
     /// The recorder's progress: messages written, samples missed, files.
@@ -116,8 +120,8 @@ pub mod fault {
     /// The valve process is starting or stopping: neutral, answering no
     /// reading (its `sensor_seq` is the newest it knew, if any).
     pub const OFF: u32 = 1 << 5;
-    /// The valve device (on CAN) faulted or went silent: neutral, and the
-    /// valve process ends so that the supervisor brings it up afresh.
+    /// The valve device (on CAN) has a latched fault: neutral until a
+    /// person resets it (`hydractl valve reset`).
     pub const DEVICE: u32 = 1 << 6;
 }
 
@@ -153,6 +157,8 @@ pub mod code {
     /// A process that is none of the run's publishes on one of its
     /// services (`process`: the service, `pid`: the stranger).
     pub const EVENT_STRANGER: u32 = 9;
+    /// [`crate::ValveRequest`] kinds: reset the valve's latched fault.
+    pub const VALVE_RESET: u32 = 1;
 
     pub fn variant_name(variant: u32) -> &'static str {
         match variant {
@@ -422,6 +428,50 @@ pub struct SupervisorEvent {
     pub to: [u8; 16],
 }
 
+/// The machine's valve device as the valve process sees it (CAN only):
+/// published when it changes and every 100 ms.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::ValveDevice")]
+pub struct ValveDevice {
+    pub seq: u64,
+    pub stage_time_ns: u64,
+    /// When the latched fault was first seen, ns since the Unix epoch (it
+    /// may predate this run); 0 without one.
+    pub latched_since_unix_ns: u64,
+    /// The last reset by this valve process, CLOCK_MONOTONIC ns; 0: none.
+    pub reset_time_ns: u64,
+    /// The latched fault's code: the EMCY's error code, or the stack's own
+    /// (above 0xFFFF); 0 without one.
+    pub fault_code: u32,
+    pub latched: u32,
+    /// Resets by this valve process.
+    pub resets: u32,
+    pub reserved: u32,
+    /// NUL-padded UTF-8: the device's state in words ("active", "fault
+    /// hold", "not heard"), and the latched fault's meaning.
+    pub state: [u8; 16],
+    pub meaning: [u8; 96],
+}
+
+impl Default for ValveDevice {
+    fn default() -> Self {
+        Self::zeroed()
+    }
+}
+
+/// A request to the valve process.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("hydractl::ValveRequest")]
+pub struct ValveRequest {
+    /// [`code`] `VALVE_*`.
+    pub kind: u32,
+    /// Reset: 1 when a person says the valve was serviced (the count of
+    /// recent resets starts again).
+    pub serviced: u32,
+}
+
 /// A request to the supervisor.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[repr(C)]
@@ -674,6 +724,7 @@ mod tests {
         assert_eq!(size_of::<Handover>(), 5 * 8);
         assert_eq!(size_of::<SupervisorEvent>(), 10 * 8 + 8 + 48);
         assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 320);
+        assert_eq!(size_of::<ValveDevice>(), 4 * 8 + 4 * 4 + 16 + 96);
     }
 
     #[test]

@@ -15,7 +15,7 @@ use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{
     BenchSample, FrictionSample, Handover, HandoverAck, ModelDrift, PlantReading, PositionSample, RecorderStatus,
-    SensorSample, ShadowSample, SupervisorEvent, SupervisorStatus, TorqueSample, ValveSample,
+    SensorSample, ShadowSample, SupervisorEvent, SupervisorStatus, TorqueSample, ValveDevice, ValveSample,
 };
 
 #[cfg(not(target_endian = "little"))]
@@ -77,7 +77,7 @@ pub trait KindVisitor {
 }
 
 /// Every recordable kind.
-pub const KINDS: [&SampleKind; 14] = [
+pub const KINDS: [&SampleKind; 15] = [
     &PlantReading::KIND,
     &SensorSample::KIND,
     &FrictionSample::KIND,
@@ -92,11 +92,12 @@ pub const KINDS: [&SampleKind; 14] = [
     &BenchSample::KIND,
     &ShadowSample::KIND,
     &ModelDrift::KIND,
+    &ValveDevice::KIND,
 ];
 
 /// The stack's own services and what they carry: the recorder subscribes
 /// to these before their publishers exist, discovery finds the rest.
-pub const STACK_SERVICES: [(&str, &SampleKind); 13] = [
+pub const STACK_SERVICES: [(&str, &SampleKind); 14] = [
     (crate::service::PLANT_READING, &PlantReading::KIND),
     (crate::service::SENSOR, &SensorSample::KIND),
     (crate::service::FRICTION, &FrictionSample::KIND),
@@ -110,6 +111,7 @@ pub const STACK_SERVICES: [(&str, &SampleKind); 13] = [
     (crate::service::HANDOVER_ACK, &HandoverAck::KIND),
     (crate::service::SHADOW, &ShadowSample::KIND),
     (crate::service::SHADOW_DRIFT, &ModelDrift::KIND),
+    (crate::service::VALVE_DEVICE, &ValveDevice::KIND),
 ];
 
 /// Visits the type named `type_name`; `None` for a type we do not know.
@@ -132,6 +134,7 @@ pub fn visit_kind<V: KindVisitor>(type_name: &str, visitor: V) -> Option<V::Outp
         n if is::<BenchSample>(n) => visitor.visit::<BenchSample>(),
         n if is::<ShadowSample>(n) => visitor.visit::<ShadowSample>(),
         n if is::<ModelDrift>(n) => visitor.visit::<ModelDrift>(),
+        n if is::<ValveDevice>(n) => visitor.visit::<ValveDevice>(),
         _ => return None,
     })
 }
@@ -224,6 +227,13 @@ recordable!(
     stage_time_ns,
     "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 valve_safe_after_periods\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nstring process\nstring from\nstring to\n",
     &[("process", 16), ("from", 16), ("to", 16)]
+);
+recordable!(
+    ValveDevice,
+    "ValveDevice",
+    stage_time_ns,
+    "uint64 seq\nuint64 stage_time_ns\nuint64 latched_since_unix_ns\nuint64 reset_time_ns\nuint32 fault_code\nuint32 latched\nuint32 resets\nuint32 reserved\nstring state\nstring meaning\n",
+    &[("state", 16), ("meaning", 96)]
 );
 recordable!(
     BenchSample,

@@ -203,6 +203,13 @@ impl ValveStage {
         self.in_limit_cycle = false;
     }
 
+    /// The device held the spool at neutral instead of the command (not yet
+    /// Active, a fault latched): the next command is rate-limited from
+    /// neutral, as the valve sees it.
+    pub fn held_at_neutral(&mut self) {
+        self.shaper.initialize_output(0.0);
+    }
+
     fn neutral(&mut self) -> f64 {
         self.shaper.initialize_output(0.0);
         0.0

@@ -1,5 +1,5 @@
-//! `hydractl swap`, `hydractl plant` and `hydractl status`: talking to a
-//! running stack.
+//! `hydractl swap`, `hydractl plant`, `hydractl valve` and `hydractl
+//! status`: talking to a running stack.
 
 use std::time::{Duration, Instant};
 
@@ -7,7 +7,7 @@ use anyhow::{bail, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, CommandClient, Reader, RunScope, PREFIX_ENV};
 use hydractl_samples::{
     code, name_str, service, source, RecorderStatus, ShadowSample, SupervisorReply, SupervisorRequest,
-    SupervisorStatus, UNKNOWN,
+    SupervisorStatus, ValveDevice, ValveRequest, UNKNOWN,
 };
 use serde::Serialize;
 
@@ -24,8 +24,9 @@ pub struct SwapArgs {
 
 #[derive(clap::Args)]
 pub struct StatusArgs {
-    /// Print JSON: {"running", "plant", "processes": [{"name", "pid", "variant", "healthy", "restarts"}]};
-    /// with no run alive, {"running": false} (and exit status 1).
+    /// Print JSON: {"running", "plant", "processes": [{"name", "pid", "variant", "healthy", "restarts"}],
+    /// "valve": {"state", "latched_fault": {"code", "meaning"}, "since_s"}}; with no run alive,
+    /// {"running": false} (and exit status 1).
     #[arg(long)]
     json: bool,
 }
@@ -85,15 +86,60 @@ pub fn plant(args: PlantArgs) -> Result<()> {
     )
 }
 
+#[derive(clap::Args)]
+pub struct ValveArgs {
+    #[command(subcommand)]
+    action: ValveAction,
+}
+
+#[derive(clap::Subcommand)]
+enum ValveAction {
+    /// Reset the machine's valve's latched fault: refused unless the loop asks
+    /// neutral of the valve (or runs on the simulated plant); says what it reset.
+    Reset {
+        /// The valve was serviced: a valve that faulted again after each of
+        /// the last resets needs this.
+        #[arg(long)]
+        serviced: bool,
+        /// Seconds to wait for the valve process's answer.
+        #[arg(long, default_value_t = 5.0)]
+        timeout: f64,
+    },
+}
+
+/// `hydractl valve reset`: a person's reset of the valve's latched fault.
+pub fn valve(args: ValveArgs) -> Result<()> {
+    match args.action {
+        ValveAction::Reset { serviced, timeout } => ask(
+            "valve reset",
+            (service::VALVE_COMMAND, "the valve process (a run on CAN)"),
+            ValveRequest {
+                kind: code::VALVE_RESET,
+                serviced: u32::from(serviced),
+            },
+            timeout,
+        ),
+    }
+}
+
 /// Sends `request` to the supervisor of the run and prints its answer; a
 /// refusal is an error that says why.
 fn ask_supervisor(what: &str, request: SupervisorRequest, timeout: f64) -> Result<()> {
+    ask(what, (service::SUPERVISOR_COMMAND, "the supervisor"), request, timeout)
+}
+
+/// Sends `request` to the process serving `to` (its service, and who it is
+/// in words) and prints its answer; a refusal is an error that says why.
+fn ask<Req>(what: &str, to: (&str, &str), request: Req, timeout: f64) -> Result<()>
+where
+    Req: hydractl_bus::ZeroCopySend + std::fmt::Debug + Copy + 'static,
+{
+    let (service_name, who) = to;
     let bus = open_run(what)?;
-    let client: CommandClient<SupervisorRequest, SupervisorReply> =
-        CommandClient::open(&bus, service::SUPERVISOR_COMMAND)?;
+    let client: CommandClient<Req, SupervisorReply> = CommandClient::open(&bus, service_name)?;
     let pending = client.send(request)?;
     if pending.servers() == 0 {
-        bail!("the supervisor is not taking commands");
+        bail!("{who} is not taking commands");
     }
     let deadline = Instant::now() + Duration::from_secs_f64(timeout.max(0.1));
     while Instant::now() < deadline {
@@ -106,7 +152,7 @@ fn ask_supervisor(what: &str, request: SupervisorRequest, timeout: f64) -> Resul
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    bail!("no answer from the supervisor within {timeout} s")
+    bail!("no answer from {who} within {timeout} s")
 }
 
 #[derive(Serialize)]
@@ -132,6 +178,44 @@ struct StatusView {
     /// The shadow model's last window, when one watches the machine.
     #[serde(skip_serializing_if = "Option::is_none")]
     shadow: Option<ShadowView>,
+    /// The machine's valve on CAN; null for the simulated valve.
+    valve: Option<ValveView>,
+}
+
+#[derive(Serialize)]
+struct ValveView {
+    /// The device's state as its last status said ("active", "fault hold",
+    /// "not heard").
+    state: String,
+    latched_fault: Option<LatchedFaultView>,
+    /// How long the fault has been latched (across restarts), s.
+    since_s: Option<f64>,
+    /// Resets since the valve process started.
+    resets: u32,
+}
+
+#[derive(Serialize)]
+struct LatchedFaultView {
+    code: u32,
+    meaning: String,
+}
+
+/// The valve process's newest word on the machine's valve; `None` for a
+/// run on the simulated valve (it publishes every 100 ms on CAN).
+fn valve_view(device: &Reader<ValveDevice>) -> Result<Option<ValveView>> {
+    let Some(d) = device.latest_within(Duration::from_millis(300))? else {
+        return Ok(None);
+    };
+    let latched = d.latched != 0;
+    Ok(Some(ValveView {
+        state: name_str(&d.state).to_owned(),
+        latched_fault: latched.then(|| LatchedFaultView {
+            code: d.fault_code,
+            meaning: name_str(&d.meaning).to_owned(),
+        }),
+        since_s: latched.then(|| (hydractl_bus::clock::unix_now_s() - d.latched_since_unix_ns as f64 * 1e-9).max(0.0)),
+        resets: d.resets,
+    }))
 }
 
 /// The shadow model's last word.
@@ -222,6 +306,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
     let reader: Reader<SupervisorStatus> = Reader::open(&bus, service::SUPERVISOR_STATUS, 1)?;
     let recorder: Reader<RecorderStatus> = Reader::open(&bus, service::RECORDER_STATUS, 1)?;
     let shadow: Reader<ShadowSample> = Reader::open(&bus, service::SHADOW, 1)?;
+    let device: Reader<ValveDevice> = Reader::open(&bus, service::VALVE_DEVICE, 1)?;
     let Some(status) = reader.latest_within(Duration::from_secs(2))? else {
         bail!("the supervisor published no status within 2 s");
     };
@@ -249,6 +334,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
             status.processes.iter().any(|p| name_str(&p.name) == "recorder"),
         )?,
         shadow: shadow_view(&shadow, status.processes.iter().any(|p| name_str(&p.name) == "shadow"))?,
+        valve: valve_view(&device)?,
     };
     if args.json {
         return crate::emit(&(serde_json::to_string_pretty(&view)? + "\n"));
@@ -299,6 +385,18 @@ pub fn status(args: StatusArgs) -> Result<()> {
                 n.samples, n.for_last_s
             );
         }
+    }
+    if let Some(v) = &view.valve {
+        text += &match &v.latched_fault {
+            Some(f) => format!(
+                "valve: {}, FAULT LATCHED {:.0} s ago: {} ({}); neutral until `hydractl valve reset`\n",
+                v.state,
+                v.since_s.unwrap_or(0.0),
+                hydractl_can::valve::fault_code_name(f.code),
+                f.meaning
+            ),
+            None => format!("valve: {}\n", v.state),
+        };
     }
     if let Some(s) = &view.shadow {
         let fits: Vec<String> = s.fit_percent.iter().map(|(o, f)| format!("{o} {f:.1} %")).collect();

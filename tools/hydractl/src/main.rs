@@ -68,6 +68,8 @@ enum Command {
     Plant(control::PlantArgs),
     /// The running stack: processes, pids, variants in charge, health, restarts, plant.
     Status(control::StatusArgs),
+    /// The machine's valve on CAN: `valve reset` clears its latched fault, a person's deliberate act.
+    Valve(control::ValveArgs),
     /// Attach a recorder to the run already alive: every sample to MCAP.
     Record(recording::RecordArgs),
     /// Republish a recording's samples on their services.
@@ -270,6 +272,7 @@ fn run_command() -> Result<()> {
         Command::Swap(args) => control::swap(args),
         Command::Plant(args) => control::plant(args),
         Command::Status(args) => control::status(args),
+        Command::Valve(args) => control::valve(args),
         Command::Record(args) => recording::record(args),
         Command::Replay(args) => recording::replay(args),
         Command::Mcap(command) => recording::mcap(command),

@@ -19,6 +19,7 @@ use nix::unistd::Pid;
 use serde::Serialize;
 
 mod monitor;
+mod valve_faults;
 
 use monitor::{merge_status, LatencyHistogram, LiveLine, Tracking};
 
@@ -89,6 +90,8 @@ struct RunSummary {
     rms_tracking_error_rad: f64,
     /// Valve samples published in neutral with a fault flag.
     valve_fault_cycles: u64,
+    /// The machine's valve's latched faults (CAN), each with its reset.
+    valve_faults: Vec<valve_faults::ValveFaultSummary>,
     processes: Vec<ProcessSummary>,
     /// Processes that crashed or hung, and how the stack recovered.
     faults: Vec<FaultSummary>,
@@ -476,6 +479,23 @@ pub fn run(mut args: RunArgs) -> Result<()> {
             c.bus, c.bitrate, c.load_percent, c.frames_per_period, c.late_pdos, c.lost_frames, c.error_frames, c.emcy
         );
     }
+    for f in &summary.valve_faults {
+        eprintln!(
+            "VALVE FAULT {}{} at {:.1} s: {}; {}",
+            hydractl_can::valve::fault_code_name(f.code),
+            if f.latched_before_run {
+                " (latched before this run)"
+            } else {
+                ""
+            },
+            f.at_s,
+            f.meaning,
+            match f.reset_at_s {
+                Some(t) => format!("reset at {t:.1} s"),
+                None => "STILL LATCHED: the valve stays neutral until `hydractl valve reset`".to_owned(),
+            }
+        );
+    }
     for switch in &summary.plant_switches {
         eprintln!(
             "plant: {} → {} ({}) from reading {}",
@@ -556,6 +576,7 @@ struct Taps {
     events: Reader<SupervisorEvent>,
     shadow: Reader<hydractl_samples::ShadowSample>,
     drift: Reader<hydractl_samples::ModelDrift>,
+    device: Reader<hydractl_samples::ValveDevice>,
 }
 
 impl Taps {
@@ -572,6 +593,7 @@ impl Taps {
             events: Reader::open(&bus, service::SUPERVISOR_EVENTS, 64)?,
             shadow: Reader::open(&bus, service::SHADOW, 16)?,
             drift: Reader::open(&bus, service::SHADOW_DRIFT, 16)?,
+            device: Reader::open(&bus, service::VALVE_DEVICE, 16)?,
             bus,
         })
     }
@@ -612,7 +634,9 @@ fn watch(
         events,
         shadow,
         drift,
+        device,
     } = taps;
+    let mut valve_faults = valve_faults::ValveFaults::default();
     let started = Instant::now();
     // The duration runs from the loop's first cycle: a run is never stopped
     // while its processes are still starting (their start-up is not made to
@@ -853,6 +877,9 @@ fn watch(
                     _ => {}
                 }
             }
+            while let Some(d) = device.next()? {
+                valve_faults.on_device(&d, started.elapsed().as_secs_f64());
+            }
             while let Some(s) = shadow.next()? {
                 shadow_windows += 1;
                 shadow_last = Some(s);
@@ -955,6 +982,7 @@ fn watch(
         max_abs_tracking_error_rad: tracking.since_start().max_abs,
         rms_tracking_error_rad: tracking.since_start().rms,
         valve_fault_cycles: faults,
+        valve_faults: valve_faults.faults,
         processes,
         faults: faults_seen,
         strangers,
