@@ -35,6 +35,11 @@ pub const STATUS_TIMEOUT_NS: u64 = 100_000_000;
 /// Nothing at all from the valve this long after the master started: no
 /// valve on the bus (a node ID that is not the valve's, a cut cable).
 pub const NEVER_HEARD_NS: u64 = 2_000_000_000;
+/// A frame the bus refuses (a full transmit queue) is tried again at once,
+/// this many times in all; only a run of [`FAILED_WRITES_FAULT`] frames
+/// that could not be sent is a fault.
+const WRITE_ATTEMPTS: u32 = 3;
+pub const FAILED_WRITES_FAULT: u32 = 5;
 
 /// What a reset did, in words, or why it was refused.
 pub type ResetAnswer = std::result::Result<String, String>;
@@ -57,6 +62,7 @@ pub struct CanValve {
     /// The set point the valve was last sent while Active and driven.
     following: Option<f64>,
     spool: SpoolWatch,
+    writes: WriteRun,
     pub bad_frames: u64,
 }
 
@@ -84,6 +90,7 @@ impl CanValve {
             heard: false,
             following: None,
             spool: SpoolWatch::new(profile.valve_spool_tolerance, profile.valve_spool_hold_ms),
+            writes: WriteRun::default(),
             bad_frames: 0,
         })
     }
@@ -199,24 +206,38 @@ impl CanValve {
         let applied = drive && !latched && self.master.active();
         self.following = applied.then(|| hydractl_can::valve::spool_position(hydractl_can::valve::set_point(command)));
         let set_point = self.master.set_point_frame(if applied { command } else { 0.0 })?;
-        self.port.send(&set_point).context("sending the valve's set point")?;
+        self.send(&set_point, "the set point")?;
         if let Some(request) = self.master.setting_frame(clock::now_ns()) {
-            self.port.send(&request).context("setting the valve's timeout by SDO")?;
+            self.send(&request, "a setting by SDO")?;
         }
         if latched {
             // A valve still Active under a fault only the master saw.
             if self.master.active() {
                 let hold = self.master.hold_frame()?;
-                self.port.send(&hold).context("holding the valve")?;
+                self.send(&hold, "hold")?;
             }
         } else if drive {
             // Brought up for the machine's readings only: not by the
             // neutral of a start or an end, not for the simulated plant.
             if let Some(control) = self.master.bring_up_frame()? {
-                self.port.send(&control).context("bringing the valve up")?;
+                self.send(&control, "the bring-up's control word")?;
             }
         }
         Ok(applied)
+    }
+
+    /// Sends `frame`, tried again at once when the bus refuses it; a run
+    /// of frames that could not be sent is a latched fault, one alone is
+    /// not (the next period sends again).
+    fn send(&mut self, frame: &hydractl_can::Frame, what: &str) -> Result<()> {
+        let port = &self.port;
+        if let Some((run, why)) = self.writes.send(|| port.send(frame)) {
+            self.latch(
+                fault_code::WRITES_REFUSED,
+                format!("{run} frames in a row not sent ({what}): {why}"),
+            )?;
+        }
+        Ok(())
     }
 
     /// A person's reset of the latched fault. Refused when nothing is
@@ -283,4 +304,61 @@ impl CanValve {
 
 fn emergency_meaning(e: &Emergency) -> String {
     format!("EMCY {:#06x}: {}", e.code, e.describe())
+}
+
+/// Frames in a row that could not be sent, each after its retries.
+#[derive(Debug, Default)]
+struct WriteRun {
+    failed: u32,
+}
+
+impl WriteRun {
+    /// Tries `send` up to [`WRITE_ATTEMPTS`] times. `Some` (the run's
+    /// length and the last error) once [`FAILED_WRITES_FAULT`] frames in a
+    /// row could not be sent.
+    fn send<E: std::fmt::Display>(
+        &mut self,
+        mut send: impl FnMut() -> std::result::Result<(), E>,
+    ) -> Option<(u32, String)> {
+        let mut last_error = String::new();
+        for _ in 0..WRITE_ATTEMPTS {
+            match send() {
+                Ok(()) => {
+                    self.failed = 0;
+                    return None;
+                }
+                Err(e) => last_error = e.to_string(),
+            }
+        }
+        self.failed += 1;
+        (self.failed >= FAILED_WRITES_FAULT).then_some((self.failed, last_error))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_refused_write_is_tried_again_and_only_a_run_of_them_is_a_fault() {
+        let mut writes = WriteRun::default();
+        // Refused twice, then taken: no fault, and the run starts again.
+        let mut calls = 0;
+        let refused_twice = writes.send(|| {
+            calls += 1;
+            if calls < 3 {
+                Err("no buffer space")
+            } else {
+                Ok(())
+            }
+        });
+        assert_eq!((refused_twice, calls), (None, 3));
+        for frame in 1..FAILED_WRITES_FAULT {
+            assert_eq!(writes.send(|| Err("no buffer space")), None, "frame {frame}");
+        }
+        let fault = writes.send(|| Err("no buffer space")).expect("a run of them");
+        assert_eq!(fault, (FAILED_WRITES_FAULT, "no buffer space".to_owned()));
+        assert_eq!(writes.send(|| Ok::<(), &str>(())), None);
+        assert_eq!(writes.failed, 0);
+    }
 }

@@ -13,10 +13,25 @@ use anyhow::{Context, Result};
 use hydractl_bus::can::{frame_sample, sample_frame};
 use hydractl_bus::{clock, run_until, Inlet, Outlet};
 use hydractl_can::wire::Wire;
-use hydractl_samples::{service, CanFrameSample};
+use hydractl_samples::{service, CanFrameSample, WireStatus};
 
 /// Frames the wire may be handed between two of its wake-ups.
 const TX_BUFFER: usize = 256;
+/// How often the wire's counters are published.
+const STATUS_EVERY_NS: u64 = 100_000_000;
+
+fn status(wire: &Wire, seq: u64) -> WireStatus {
+    let c = wire.counters();
+    WireStatus {
+        seq,
+        stage_time_ns: clock::now_ns(),
+        delivered: c.delivered,
+        lost: c.lost,
+        silenced: c.silenced,
+        error_frames: c.error_frames,
+        busy_ns: c.busy_ns,
+    }
+}
 
 pub fn run() -> Result<()> {
     let started = crate::start("canbus")?;
@@ -25,6 +40,10 @@ pub fn run() -> Result<()> {
         Inlet::open(&started.bus, &service::can_tx(&can.interface), TX_BUFFER).context("the bus's transmit side")?;
     let rx: Outlet<CanFrameSample> =
         Outlet::open(&started.bus, &service::can_rx(&can.interface)).context("the bus's receive side")?;
+    let counters: Outlet<WireStatus> =
+        Outlet::open(&started.bus, &service::can_wire(&can.interface)).context("the bus's counters")?;
+    let mut status_seq = 0u64;
+    let mut status_due_ns = clock::now_ns();
     let mut wire = Wire::new(can.bitrate);
     let faults = can.faults.clone();
     let mut faults_on = false;
@@ -80,9 +99,17 @@ pub fn run() -> Result<()> {
                     sample.submitted_ns = delivery.submitted_ns;
                     rx.publish(sample)?;
                 }
+                let now = clock::now_ns();
+                if now >= status_due_ns {
+                    counters.publish(status(&wire, status_seq))?;
+                    status_seq += 1;
+                    status_due_ns = now + STATUS_EVERY_NS;
+                }
                 Ok(())
             })
         },
     )?;
+    // The last word, for a run that reads the counters at its end.
+    counters.publish(status(&wire_cell.borrow(), status_seq))?;
     failure.map_or(Ok(()), Err)
 }

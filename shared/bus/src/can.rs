@@ -41,6 +41,9 @@ pub enum CanPortError {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Received {
     pub frame: Frame,
+    /// When the frame crossed the bus, CLOCK_MONOTONIC ns: the wire's time
+    /// on the virtual bus, the kernel's receive stamp on SocketCAN; never
+    /// when the process read it.
     pub time_ns: u64,
 }
 
@@ -271,11 +274,15 @@ impl CanPort for VirtualCanPort {
 }
 
 /// A SocketCAN raw socket on a real interface: non-blocking, filtered in
-/// the kernel, error frames let through and counted.
+/// the kernel, error frames let through and counted, every frame stamped
+/// by the kernel when it arrived (not when it was read), as the virtual
+/// bus stamps it with the time it crossed the wire.
 pub struct SocketCanPort {
     interface: String,
     socket: socketcan::CanSocket,
     error_frames: Cell<u64>,
+    /// The receive timestamp's control message, reused.
+    control: std::cell::RefCell<Vec<u8>>,
 }
 
 impl SocketCanPort {
@@ -315,10 +322,13 @@ impl SocketCanPort {
         socket
             .set_error_filter_accept_all()
             .map_err(io("accepting error frames"))?;
+        crate::kernel_time::enable(socket.as_fd())
+            .map_err(|e| io("asking for receive timestamps")(std::io::Error::from(e)))?;
         Ok(Self {
             interface: interface.to_string(),
             socket,
             error_frames: Cell::new(0),
+            control: std::cell::RefCell::new(crate::kernel_time::control_buffer()),
         })
     }
 }
@@ -404,35 +414,52 @@ impl CanPort for SocketCanPort {
     }
 
     fn receive(&self) -> Result<Option<Received>, CanPortError> {
-        let raw = match self.socket.read_raw_frame() {
-            Ok(raw) => raw,
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
-            Err(source) => {
+        // `struct can_frame`: the ID with its flags, the length, three
+        // bytes of padding and reserved fields, eight of data.
+        let mut raw = [0u8; 16];
+        let received = crate::kernel_time::receive(self.socket.as_fd(), &mut raw, &mut self.control.borrow_mut());
+        let (len, stamp) = match received {
+            Ok(Some(got)) => got,
+            Ok(None) => return Ok(None),
+            Err(errno) => {
                 return Err(CanPortError::Io {
                     interface: self.interface.clone(),
                     what: "receiving",
-                    source,
+                    source: errno.into(),
                 })
             }
         };
-        let time_ns = clock::now_ns();
+        if len < raw.len() {
+            return Err(CanPortError::Io {
+                interface: self.interface.clone(),
+                what: "receiving",
+                source: std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!("{len} bytes, a CAN frame is 16 (a CAN FD frame on a classic socket?)"),
+                ),
+            });
+        }
+        let time_ns = stamp.unwrap_or_else(clock::now_ns);
+        let can_id = u32::from_ne_bytes([raw[0], raw[1], raw[2], raw[3]]);
         let mut flags = 0;
-        if raw.can_id & CAN_EFF_FLAG != 0 {
+        if can_id & CAN_EFF_FLAG != 0 {
             flags |= Frame::EXTENDED;
         }
-        if raw.can_id & CAN_RTR_FLAG != 0 {
+        if can_id & CAN_RTR_FLAG != 0 {
             flags |= Frame::REMOTE;
         }
-        if raw.can_id & CAN_ERR_FLAG != 0 {
+        if can_id & CAN_ERR_FLAG != 0 {
             flags |= Frame::ERROR;
             self.error_frames.set(self.error_frames.get() + 1);
         }
+        let mut data = [0u8; 8];
+        data.copy_from_slice(&raw[8..16]);
         let frame = Frame {
-            id: raw.can_id & Frame::MAX_EXTENDED_ID,
+            id: can_id & Frame::MAX_EXTENDED_ID,
             flags,
-            len: raw.can_dlc.min(8),
+            len: raw[4].min(8),
             reserved: [0; 2],
-            data: raw.data,
+            data,
         };
         Ok(Some(Received { frame, time_ns }))
     }

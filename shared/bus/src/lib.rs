@@ -8,6 +8,7 @@ pub mod clock;
 mod command;
 pub mod devices;
 mod doorbell;
+pub mod kernel_time;
 mod outlet;
 pub mod placement;
 mod scope;

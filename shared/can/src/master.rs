@@ -244,14 +244,14 @@ impl ValveMaster {
                 index: HEARTBEAT_PRODUCER,
                 sub: 0,
                 value: profile.heartbeat_ms,
-                what: "heartbeat producer time",
+                what: "heartbeat time",
                 unit: "ms",
             },
             Setting {
                 index: RPDO_COMMUNICATION + u16::from(profile.valve_set_point_rpdo) - 1,
                 sub: RPDO_EVENT_TIMER,
                 value: profile.valve_rpdo_timeout_ms,
-                what: "the set point RPDO's timeout, the valve's own guard",
+                what: "its own timeout",
                 unit: "ms",
             },
         ];

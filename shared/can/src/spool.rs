@@ -19,7 +19,7 @@ pub enum SpoolFault {
 
 impl std::fmt::Display for SpoolFault {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        // Short: it is a latched fault's meaning, 96 bytes at most.
+        // Short: it is a latched fault's meaning, 128 bytes at most.
         let (what, set_point, actual, hold_ms) = match *self {
             Self::Stuck {
                 set_point,

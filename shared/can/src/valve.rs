@@ -67,6 +67,8 @@ pub mod fault_code {
     pub const STATUS_MISSING: u32 = 0x4_0000;
     /// Nothing heard from the valve since the master started.
     pub const NEVER_HEARD: u32 = 0x5_0000;
+    /// The bus refused the master's frames, a run of them.
+    pub const WRITES_REFUSED: u32 = 0x6_0000;
 }
 
 /// A latched fault's code as a person reads it: an EMCY's in hex, the
@@ -77,6 +79,7 @@ pub fn fault_code_name(code: u32) -> String {
         fault_code::SPOOL => "a spool off its set point".to_owned(),
         fault_code::STATUS_MISSING => "a missing status".to_owned(),
         fault_code::NEVER_HEARD => "a silent valve".to_owned(),
+        fault_code::WRITES_REFUSED => "writes refused".to_owned(),
         c if c & !0xFFFF == fault_code::STATE => format!("fault state {:#06b}", c & 0xF),
         c => format!("{c:#06x}"),
     }

@@ -70,6 +70,10 @@ pub mod service {
     pub fn can_tx(interface: &str) -> String {
         format!("hydractl/can/{interface}/tx")
     }
+    /// The virtual CAN bus `interface`: its wire's counters.
+    pub fn can_wire(interface: &str) -> String {
+        format!("hydractl/can/{interface}/wire")
+    }
     /// The virtual CAN bus `interface`: frames that crossed it, to every station.
     pub fn can_rx(interface: &str) -> String {
         format!("hydractl/can/{interface}/rx")
@@ -209,6 +213,25 @@ pub struct CanFrameSample {
     pub len: u8,
     pub reserved: [u8; 6],
     pub data: [u8; 8],
+}
+
+/// The virtual CAN bus's wire, as its own counters say: published every
+/// 100 ms and when it stops.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Pod, Zeroable)]
+#[repr(C)]
+#[type_name("hydractl::WireStatus")]
+pub struct WireStatus {
+    pub seq: u64,
+    pub stage_time_ns: u64,
+    /// Frames that crossed the wire.
+    pub delivered: u64,
+    /// Frames lost: a full transmit queue, or handed over while bus-off.
+    pub lost: u64,
+    /// Frames of silenced stations, never sent.
+    pub silenced: u64,
+    pub error_frames: u64,
+    /// Bus time used, ns.
+    pub busy_ns: u64,
 }
 
 /// What the plant's sensors read (on the vehicle: what arrives on the bus).
@@ -451,7 +474,7 @@ pub struct ValveDevice {
     /// NUL-padded UTF-8: the device's state in words ("active", "fault
     /// hold", "not heard"), and the latched fault's meaning.
     pub state: [u8; 16],
-    pub meaning: [u8; 96],
+    pub meaning: [u8; 128],
 }
 
 impl Default for ValveDevice {
@@ -724,7 +747,7 @@ mod tests {
         assert_eq!(size_of::<Handover>(), 5 * 8);
         assert_eq!(size_of::<SupervisorEvent>(), 10 * 8 + 8 + 48);
         assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 320);
-        assert_eq!(size_of::<ValveDevice>(), 4 * 8 + 4 * 4 + 16 + 96);
+        assert_eq!(size_of::<ValveDevice>(), 4 * 8 + 4 * 4 + 16 + 128);
     }
 
     #[test]

@@ -233,7 +233,7 @@ recordable!(
     "ValveDevice",
     stage_time_ns,
     "uint64 seq\nuint64 stage_time_ns\nuint64 latched_since_unix_ns\nuint64 reset_time_ns\nuint32 fault_code\nuint32 latched\nuint32 resets\nuint32 reserved\nstring state\nstring meaning\n",
-    &[("state", 16), ("meaning", 96)]
+    &[("state", 16), ("meaning", 128)]
 );
 recordable!(
     BenchSample,

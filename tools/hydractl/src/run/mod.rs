@@ -201,6 +201,17 @@ struct CanSummary {
     malformed_pdos: u64,
     error_frames: u64,
     emcy: u64,
+    /// The virtual bus's wire, by its own counters (null on SocketCAN):
+    /// frames that crossed it and frames it lost (a full transmit queue,
+    /// or handed over while bus-off).
+    wire: Option<WireSummary>,
+}
+
+#[derive(Serialize)]
+struct WireSummary {
+    delivered: u64,
+    lost: u64,
+    error_frames: u64,
 }
 
 #[derive(Serialize)]
@@ -475,8 +486,18 @@ pub fn run(mut args: RunArgs) -> Result<()> {
     }
     if let Some(c) = &summary.can {
         eprintln!(
-            "CAN {} at {} bit/s: load {:.1} %, {:.2} frames a period, {} late PDOs, {} lost, {} error frames, {} EMCY",
-            c.bus, c.bitrate, c.load_percent, c.frames_per_period, c.late_pdos, c.lost_frames, c.error_frames, c.emcy
+            "CAN {} at {} bit/s: load {:.1} %, {:.2} frames a period, {} late PDOs, {} lost, {} error frames, {} EMCY{}",
+            c.bus,
+            c.bitrate,
+            c.load_percent,
+            c.frames_per_period,
+            c.late_pdos,
+            c.lost_frames,
+            c.error_frames,
+            c.emcy,
+            c.wire
+                .as_ref()
+                .map_or(String::new(), |w| format!("; the wire: {} delivered, {} lost", w.delivered, w.lost))
         );
     }
     for f in &summary.valve_faults {
@@ -687,15 +708,27 @@ fn watch(
             let port = hydractl_bus::can::open_monitor(&bus, &profile)?;
             // Every reading, for the machine's PDOs that were not there in time.
             let readings: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 256)?;
-            Some((port, hydractl_can::stats::BusStats::new(&profile), profile, readings))
+            let wire: Reader<hydractl_samples::WireStatus> =
+                Reader::open(&bus, &service::can_wire(&profile.interface), 4)?;
+            Some((
+                port,
+                hydractl_can::stats::BusStats::new(&profile),
+                profile,
+                readings,
+                wire,
+                None,
+            ))
         }
         None => None,
     };
     let exit = run_loop(&[], Some(Duration::from_millis(10)), &bus, |_| {
         let mut step = || -> Result<Flow> {
-            if let Some((port, stats, _, machine_readings)) = &mut can_watch {
+            if let Some((port, stats, _, machine_readings, wire, wire_last)) = &mut can_watch {
                 while let Some(received) = port.receive()? {
                     stats.on_frame(&received.frame, received.time_ns);
+                }
+                while let Some(w) = wire.next()? {
+                    *wire_last = Some(w);
                 }
                 while let Some(r) = machine_readings.next()? {
                     if r.source == hydractl_samples::source::MACHINE {
@@ -1001,7 +1034,7 @@ fn watch(
             row_gaps: shadow_last.map_or(0, |s| s.row_gaps),
         }),
         model_drift: drifts.into_iter().map(|(_, d)| d).collect(),
-        can: can_watch.map(|(port, stats, profile, _)| {
+        can: can_watch.map(|(port, stats, profile, _, _, wire_last)| {
             let f = stats.figures();
             CanSummary {
                 bus: profile.interface.clone(),
@@ -1014,6 +1047,11 @@ fn watch(
                 // SocketCAN counts the controller's error frames itself.
                 error_frames: f.error_frames.max(port.error_frames()),
                 emcy: f.emcy,
+                wire: wire_last.map(|w: hydractl_samples::WireStatus| WireSummary {
+                    delivered: w.delivered,
+                    lost: w.lost,
+                    error_frames: w.error_frames,
+                }),
             }
         }),
     })
