@@ -89,13 +89,16 @@ pub struct Export {
     /// the stage skipped that reading: the previous one is held, as the
     /// valve holds its current.
     pub held: usize,
+    /// Readings after the loop's last command (the stack stopping while
+    /// the plant still read): left out, they answer nothing.
+    pub after_loop: usize,
     pub read: ReadOutcome,
 }
 
 /// One row per plant reading (the sensor bus's raw angle and pressures, as
 /// `hydractl sim` writes them), with the valve command and the reference
 /// derived from it, joined by the reading's sequence number, from the first
-/// reading that has both.
+/// reading that has both to the last.
 pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
     let mut plant: BTreeMap<u64, PlantReading> = BTreeMap::new();
     let mut valve: BTreeMap<u64, ValveSample> = BTreeMap::new();
@@ -164,6 +167,15 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
             path: path.to_path_buf(),
             topic: service::VALVE.to_owned(),
         })?;
+    // The loop's last answered reading: after it the stack was stopping
+    // (its stages gone, the plant, a machine's bus, still reading).
+    let end = plant
+        .keys()
+        .copied()
+        .rev()
+        .find(|seq| valve.contains_key(seq) && position.contains_key(seq))
+        .unwrap_or(start);
+    let after_loop = plant.range(end + 1..).count();
     let mut rows = Vec::with_capacity(plant.len());
     let mut held = 0;
     // Each row starts from the last: a signal holds its value where a stage
@@ -185,7 +197,7 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
         torque_command: f64::NAN,
         valve_requested: f64::NAN,
     };
-    for (seq, r) in plant.range(start..) {
+    for (seq, r) in plant.range(start..=end) {
         let (v, p) = (valve.get(seq), position.get(seq));
         if v.is_none() || p.is_none() {
             held += 1;
@@ -208,7 +220,12 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
         }
         rows.push(row);
     }
-    Ok(Export { rows, held, read })
+    Ok(Export {
+        rows,
+        held,
+        after_loop,
+        read,
+    })
 }
 
 /// The loop's period: the median time between consecutive readings,

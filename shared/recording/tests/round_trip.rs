@@ -133,6 +133,7 @@ fn export_joins_by_sequence_on_the_loop_clock() {
     assert_eq!(rows.len(), 100);
     // The skipped reading's row holds the previous command.
     assert_eq!(export.held, 1);
+    assert_eq!(export.after_loop, 0);
     assert_eq!(rows[40].u, rows[39].u);
     assert!((rows[40].t - 0.040).abs() < 1e-12);
     assert!((rows[10].t - 0.010).abs() < 1e-12);

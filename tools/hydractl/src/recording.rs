@@ -295,6 +295,13 @@ fn exported(path: &Path) -> Result<hydractl_recording::Export> {
     if let Some(why) = &export.read.truncated {
         tracing::warn!("{}: {why}", path.display());
     }
+    if export.after_loop > 0 {
+        tracing::info!(
+            "{}: the last {} reading(s) came after the loop's last command (the stack stopping) and are left out",
+            path.display(),
+            export.after_loop
+        );
+    }
     if export.held > 0 {
         tracing::warn!(
             "{}: {} of {} readings have no recorded command or reference (the stage skipped them); the previous one is held",
@@ -340,6 +347,7 @@ pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
                 column.drain(..first);
             }
         }
+        keep_longest_measured_stretch(path, &mut columns);
         let data = Dataset::from_columns(&path.display().to_string(), columns);
         for name in required {
             data.column(name)?;
@@ -347,4 +355,57 @@ pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
         return Ok(data);
     }
     Ok(Dataset::from_csv(path, required)?)
+}
+
+/// The sensors' columns: a reading without one of them (a CAN PDO past its
+/// deadline, a node stopping) has nothing to compare the model with.
+const MEASURED_COLUMNS: [&str; 3] = ["theta", "p_a", "p_b"];
+
+/// A recording's readings where a measured sensor has no value (NaN) are
+/// left out: the data keeps its longest stretch in which every measured
+/// sensor has one, and says how many readings that left out and where.
+/// (The model tools need evenly spaced samples; a record too short after
+/// this is refused by them, naming its length.)
+fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) {
+    let measured: Vec<&Vec<f64>> = columns
+        .iter()
+        .filter(|(name, _)| MEASURED_COLUMNS.contains(name))
+        .map(|(_, c)| c)
+        .collect();
+    let Some(n) = measured.first().map(|c| c.len()) else {
+        return;
+    };
+    let complete = |k: usize| measured.iter().all(|c| c[k].is_finite());
+    let missing: Vec<usize> = (0..n).filter(|&k| !complete(k)).collect();
+    if missing.is_empty() {
+        return;
+    }
+    // The stretches between missing readings; the longest is kept.
+    let mut best = 0..0;
+    let mut from = 0;
+    for &k in missing.iter().chain(std::iter::once(&n)) {
+        if k - from > best.len() {
+            best = from..k;
+        }
+        from = k + 1;
+    }
+    let t = columns.iter().find(|(name, _)| *name == "t").map(|(_, c)| c.clone());
+    let at = |k: usize| t.as_ref().map_or(f64::NAN, |t| t[k.min(n - 1)]);
+    let shown: Vec<String> = missing.iter().take(5).map(|&k| format!("{:.3} s", at(k))).collect();
+    tracing::warn!(
+        "{}: {} reading(s) have no value from a sensor (at {}{}); the data keeps the longest stretch without one, \
+         {:.3} s to {:.3} s ({} of {} readings)",
+        path.display(),
+        missing.len(),
+        shown.join(", "),
+        if missing.len() > shown.len() { ", …" } else { "" },
+        at(best.start),
+        at(best.end.saturating_sub(1)),
+        best.len(),
+        n
+    );
+    for (_, column) in columns.iter_mut() {
+        column.truncate(best.end);
+        column.drain(..best.start);
+    }
 }
