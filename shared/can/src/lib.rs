@@ -21,11 +21,13 @@
 //!   late and lost PDOs, EMCYs, error frames;
 //! - [`timing`]: how long a frame occupies the bus, stuffing included, and
 //!   whether a period's frames fit;
+//! - [`budget`]: what one period's frames take of the bus;
 //! - [`candump`]: can-utils' `candump -l` log lines;
 //! - [`wire`]: the virtual bus's wire: arbitration, bus time, faults;
 //! - [`profile`]: the `[can]` table of the config: nodes, COB-IDs,
 //!   mappings, scaling, bitrate and timeouts, checked for clashes.
 
+pub mod budget;
 pub mod candump;
 pub mod canopen;
 pub mod ecu;
