@@ -319,7 +319,7 @@ mod tests {
         );
         for (from, to, key) in [
             (
-                "swap_rollback_factor = 3.0",
+                "swap_rollback_factor = 2.0",
                 "swap_rollback_factor = 0.5",
                 "swap_rollback_factor",
             ),

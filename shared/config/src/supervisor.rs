@@ -68,7 +68,7 @@ impl Default for SupervisorConfig {
             spinning_cpu_share: 0.5,
             spinning_after_ms: 20,
             swap_judge_ms: 2000,
-            swap_rollback_factor: 3.0,
+            swap_rollback_factor: 2.0,
             swap_rollback_min_rms_rad: 0.1,
         }
     }
