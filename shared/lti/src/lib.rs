@@ -8,12 +8,14 @@
 
 mod discrete;
 mod poly;
+mod riccati;
 mod state_space;
 mod transfer_function;
 
 pub use discrete::DiscreteSiso;
 pub use nalgebra::Complex;
 pub use poly::{poly_eval, poly_from_roots, poly_mul, poly_roots};
+pub use riccati::{matrix_sign, solve_care};
 pub use state_space::StateSpace;
 pub use transfer_function::TransferFunction;
 
@@ -29,4 +31,6 @@ pub enum LtiError {
     InvalidSampleTime(f64),
     #[error("a coefficient is not finite")]
     NotFinite,
+    #[error("Riccati equation: {0}")]
+    Riccati(String),
 }

@@ -64,6 +64,73 @@ impl StateSpace {
         Ok(TransferFunction::new(trim_leading_negligible(&num, &shifted, &den), den)?.minimal(1e-6))
     }
 
+    /// The system whose input drives `self` and whose output is `then`'s:
+    /// `then ∘ self`, states `[x_self; x_then]`.
+    pub fn series(&self, then: &StateSpace) -> Result<StateSpace, LtiError> {
+        if self.c.nrows() != then.b.ncols() {
+            return Err(LtiError::Dimension(format!(
+                "{} outputs into {} inputs",
+                self.c.nrows(),
+                then.b.ncols()
+            )));
+        }
+        let (n1, n2) = (self.states(), then.states());
+        let mut a = DMatrix::zeros(n1 + n2, n1 + n2);
+        a.view_mut((0, 0), (n1, n1)).copy_from(&self.a);
+        a.view_mut((n1, 0), (n2, n1)).copy_from(&(&then.b * &self.c));
+        a.view_mut((n1, n1), (n2, n2)).copy_from(&then.a);
+        let mut b = DMatrix::zeros(n1 + n2, self.b.ncols());
+        b.view_mut((0, 0), (n1, self.b.ncols())).copy_from(&self.b);
+        b.view_mut((n1, 0), (n2, self.b.ncols()))
+            .copy_from(&(&then.b * &self.d));
+        let mut c = DMatrix::zeros(then.c.nrows(), n1 + n2);
+        c.view_mut((0, 0), (then.c.nrows(), n1)).copy_from(&(&then.d * &self.c));
+        c.view_mut((0, n1), (then.c.nrows(), n2)).copy_from(&then.c);
+        StateSpace::new(a, b, c, &then.d * &self.d)
+    }
+
+    /// `C (jω I − A)⁻¹ B + D` from the first input to the first output.
+    pub fn frequency_response(&self, omega: f64) -> Complex<f64> {
+        let n = self.states();
+        let d = Complex::new(self.d[(0, 0)], 0.0);
+        if n == 0 {
+            return d;
+        }
+        let shifted = DMatrix::from_fn(n, n, |i, j| {
+            let diagonal = if i == j {
+                Complex::new(0.0, omega)
+            } else {
+                Complex::new(0.0, 0.0)
+            };
+            diagonal - Complex::new(self.a[(i, j)], 0.0)
+        });
+        let b = DMatrix::from_fn(n, 1, |i, _| Complex::new(self.b[(i, 0)], 0.0));
+        match shifted.lu().solve(&b) {
+            Some(x) => (0..n).map(|i| x[(i, 0)] * self.c[(0, i)]).sum::<Complex<f64>>() + d,
+            // ω is a pole on the axis: the response is unbounded there.
+            None => Complex::new(f64::INFINITY, 0.0),
+        }
+    }
+
+    /// The poles of the SISO loop closed around this plant (no feedthrough)
+    /// by `controller` on the error, `u = K (r − y)`.
+    pub fn negative_feedback_poles(&self, controller: &StateSpace) -> Result<Vec<Complex<f64>>, LtiError> {
+        if self.d.iter().any(|v| *v != 0.0) || self.b.ncols() != 1 || controller.b.ncols() != 1 {
+            return Err(LtiError::Dimension(
+                "a SISO plant without feedthrough and a SISO controller".into(),
+            ));
+        }
+        let (np, nk) = (self.states(), controller.states());
+        let mut a = DMatrix::zeros(np + nk, np + nk);
+        let dk = controller.d[(0, 0)];
+        a.view_mut((0, 0), (np, np))
+            .copy_from(&(&self.a - &self.b * &self.c * dk));
+        a.view_mut((0, np), (np, nk)).copy_from(&(&self.b * &controller.c));
+        a.view_mut((np, 0), (nk, np)).copy_from(&(-(&controller.b * &self.c)));
+        a.view_mut((np, np), (nk, nk)).copy_from(&controller.a);
+        Ok(eigenvalues(&a))
+    }
+
     /// Zero-order-hold discretization at sample time `ts`, by the matrix
     /// exponential of the augmented matrix `[[A, B], [0, 0]] ts`.
     pub fn discretize_zoh(&self, ts: f64) -> Result<StateSpace, LtiError> {
@@ -116,15 +183,39 @@ fn trim_leading_negligible(num: &[f64], shifted: &[f64], den: &[f64]) -> Vec<f64
 /// state mixes pascals (1e7) with radians (1), and unbalanced QR loses the
 /// small eigenvalues.
 pub(crate) fn eigenvalues(a: &DMatrix<f64>) -> Vec<Complex<f64>> {
-    let balanced = balance(a);
+    let (balanced, _) = balance(a);
     balanced.complex_eigenvalues().iter().copied().collect()
 }
 
-/// Parlett–Reinsch balancing by powers of two: a similarity transform, so
-/// the eigenvalues are unchanged while the row and column norms even out.
-fn balance(a: &DMatrix<f64>) -> DMatrix<f64> {
+impl StateSpace {
+    /// The same system in states scaled so that `A`'s rows and columns have
+    /// even norms (`A' = D⁻¹ A D`, `B' = D⁻¹ B`, `C' = C D`): the companion
+    /// form of a transfer function with coefficients from 1 to 10⁸ is too
+    /// uneven for a Riccati solver.
+    pub fn balanced(&self) -> StateSpace {
+        let (a, scale) = balance(&self.a);
+        let mut b = self.b.clone();
+        let mut c = self.c.clone();
+        for (i, f) in scale.iter().enumerate() {
+            b.row_mut(i).iter_mut().for_each(|v| *v /= f);
+            c.column_mut(i).iter_mut().for_each(|v| *v *= f);
+        }
+        StateSpace {
+            a,
+            b,
+            c,
+            d: self.d.clone(),
+        }
+    }
+}
+
+/// Parlett–Reinsch balancing by powers of two: a similarity transform
+/// `D⁻¹ A D`, so the eigenvalues are unchanged while the row and column
+/// norms even out. Returns the balanced matrix and `D`'s diagonal.
+fn balance(a: &DMatrix<f64>) -> (DMatrix<f64>, Vec<f64>) {
     let n = a.nrows();
     let mut m = a.clone();
+    let mut scale = vec![1.0; n];
     let radix = 2.0_f64;
     let mut converged = false;
     let mut sweeps = 0;
@@ -159,6 +250,7 @@ fn balance(a: &DMatrix<f64>) -> DMatrix<f64> {
             }
             if (c + r) < 0.95 * sum {
                 converged = false;
+                scale[i] *= f;
                 for j in 0..n {
                     m[(i, j)] /= f;
                     m[(j, i)] *= f;
@@ -166,7 +258,7 @@ fn balance(a: &DMatrix<f64>) -> DMatrix<f64> {
             }
         }
     }
-    m
+    (m, scale)
 }
 
 #[cfg(test)]
@@ -203,6 +295,47 @@ mod tests {
         ev.sort_by(|x, y| x.im.total_cmp(&y.im));
         assert!((ev[0] - Complex::new(-1.0, -2.0)).norm() < 1e-6);
         assert!((ev[1] - Complex::new(-1.0, 2.0)).norm() < 1e-6);
+    }
+
+    #[test]
+    fn a_series_connection_multiplies_the_responses() {
+        let first = mass_spring_damper();
+        let then = TransferFunction::new(vec![3.0], vec![1.0, 4.0])
+            .expect("tf")
+            .to_state_space();
+        let both = first.series(&then).expect("series");
+        for omega in [0.1, 1.0, 10.0] {
+            let product = first.frequency_response(omega) * then.frequency_response(omega);
+            assert!((both.frequency_response(omega) - product).norm() < 1e-12 * product.norm());
+        }
+    }
+
+    #[test]
+    fn unity_feedback_of_an_integrator_has_its_pole_at_minus_the_gain() {
+        let integrator = TransferFunction::new(vec![1.0], vec![1.0, 0.0])
+            .expect("tf")
+            .to_state_space();
+        let gain = StateSpace::new(
+            DMatrix::zeros(0, 0),
+            DMatrix::zeros(0, 1),
+            DMatrix::zeros(1, 0),
+            DMatrix::from_element(1, 1, 4.0),
+        )
+        .expect("static gain");
+        let poles = integrator.negative_feedback_poles(&gain).expect("poles");
+        assert_eq!(poles.len(), 1);
+        assert!((poles[0] - Complex::new(-4.0, 0.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn balancing_keeps_the_response() {
+        let tf = TransferFunction::new(vec![7.0e6, 8.8e6], vec![1.0, 22.9, 1227.0, 7904.0, 1725.0]).expect("tf");
+        let ss = tf.to_state_space();
+        let balanced = ss.balanced();
+        for omega in [0.1, 10.0, 1000.0] {
+            let (x, y) = (ss.frequency_response(omega), balanced.frequency_response(omega));
+            assert!((x - y).norm() < 1e-9 * x.norm());
+        }
     }
 
     #[test]
