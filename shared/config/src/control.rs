@@ -165,14 +165,13 @@ impl ControlConfig {
         }
         .map_err(within(self.outer_section(outer.variant.into())))?;
         self.torque.check_feedforward().map_err(within("control.torque"))?;
-        match self.torque_variant {
-            TorqueVariant::Pid => Pid::new(self.torque.pid, ts)
-                .map(drop)
-                .map_err(within("control.torque.pid")),
-            TorqueVariant::Hinf => HInfinity::new(self.torque.hinf.clone(), ts)
-                .map(drop)
-                .map_err(within("control.torque.hinf")),
-        }?;
+        // Both variants, whichever is in charge: a swap may reach either.
+        Pid::new(self.torque.pid, ts).map_err(within("control.torque.pid"))?;
+        HInfinity::new(self.torque.hinf.clone(), ts).map_err(within("control.torque.hinf"))?;
+        self.torque
+            .hinf
+            .check_design()
+            .map_err(within("control.torque.hinf.design"))?;
         ValveShaper::new(self.valve, ts).map_err(within("control.valve"))?;
         self.valve_guard.check().map_err(within("control.valve_guard"))
     }

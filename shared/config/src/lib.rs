@@ -337,6 +337,36 @@ mod tests {
     }
 
     #[test]
+    fn only_a_controller_designed_for_this_machine_may_be_a_fallback() {
+        let path = Path::new("fallback.toml");
+        let sim = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sim.toml"))
+            .expect("config/sim.toml");
+        let hinf_fallback = sim.replace("fallback_variants = {}", "fallback_variants = { torque = \"hinf\" }");
+        Config::parse(&hinf_fallback, path).expect("sim.toml's H∞ was designed for its plant");
+        // The crane paper's controller: no design record.
+        let start = hinf_fallback.find("[control.torque.hinf]").expect("hinf table");
+        let end = hinf_fallback.find("[control.valve_guard]").expect("next table");
+        let paper = format!(
+            "{}[control.torque.hinf]\nerror_scale = 782.0\n\n{}",
+            &hinf_fallback[..start],
+            &hinf_fallback[end..]
+        );
+        let err = Config::parse(&paper, path)
+            .expect_err("the paper's controller")
+            .to_string();
+        assert!(
+            err.contains("fallback.toml") && err.contains("fallback_variants.torque") && err.contains("ident hinf"),
+            "{err}"
+        );
+        // A design record whose controller does not hold its own plant model.
+        let mismatched = hinf_fallback.replace("plant_num = [", "plant_num = [-");
+        let err = Config::parse(&mismatched, path)
+            .expect_err("unstable around its model")
+            .to_string();
+        assert!(err.contains("unstable"), "{err}");
+    }
+
+    #[test]
     fn a_machine_config_starts_from_its_base_and_overrides_the_plant() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/machine.toml");
         let config = Config::load(&path).expect("config/machine.toml");

@@ -234,6 +234,14 @@ impl Config {
                     ),
                 });
             }
+            // A fault must not land the machine in a controller nobody
+            // designed for it.
+            if stage == "torque" && variant == "hinf" && self.control.torque.hinf.design.is_none() {
+                return Err(ConfigError::Supervisor {
+                    path: path.to_owned(),
+                    reason: "fallback_variants.torque = `hinf`: [control.torque.hinf] has no [control.torque.hinf.design]: it is the crane paper's controller, designed for the crane, not this machine; design one from this machine's recording with `hydractl ident hinf --data RECORDING --out CONFIG`, or fall back to `pid`".to_owned(),
+                });
+            }
         }
         for name in sup.processes.keys() {
             if !SUPERVISED_PROCESSES.contains(&name.as_str()) {

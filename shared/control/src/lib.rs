@@ -15,7 +15,7 @@ mod valve;
 mod velocity;
 
 pub use friction::{FrictionCompensator, FrictionCompensatorParams, LoadFeedforward, StaticMap};
-pub use hinf::{HInfinity, HInfinityParams, PAPER_HINF_DEN, PAPER_HINF_NUM};
+pub use hinf::{HInfinity, HInfinityDesign, HInfinityParams, PAPER_HINF_DEN, PAPER_HINF_NUM};
 pub use limit_cycle::{LimitCycleDetector, LimitCycleParams};
 pub use mfc::{Mfc, MfcParams};
 pub use pid::{Pid, PidParams};

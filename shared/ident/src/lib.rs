@@ -3,6 +3,7 @@
 
 pub mod data;
 pub mod friction_map;
+pub mod loop_shaping;
 pub mod mechanics;
 pub mod pid_tune;
 pub mod spectral;

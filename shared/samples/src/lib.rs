@@ -127,6 +127,17 @@ pub mod fault {
     /// The valve device (on CAN) has a latched fault: neutral until a
     /// person resets it (`hydractl valve reset`).
     pub const DEVICE: u32 = 1 << 6;
+
+    /// Each flag with its name, as summaries and status write it.
+    pub const NAMES: [(u32, &str); 7] = [
+        (STALE, "stale"),
+        (NOT_FINITE, "not_finite"),
+        (OUT_OF_RANGE, "out_of_range"),
+        (INVALID_SENSOR, "invalid_sensor"),
+        (LIMIT_CYCLE, "limit_cycle"),
+        (OFF, "off"),
+        (DEVICE, "device"),
+    ];
 }
 
 /// Codes of the structure and variants, for samples that report them.

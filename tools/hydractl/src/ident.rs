@@ -21,6 +21,7 @@ pub fn run(command: IdentCommand) -> Result<()> {
         IdentCommand::Spectrum(args) => spectrum(args),
         IdentCommand::FrictionMap(args) => pseudo_friction(args),
         IdentCommand::PidIae(args) => pid_iae(args),
+        IdentCommand::Hinf(args) => crate::ident_hinf::hinf(args),
     }
 }
 
@@ -40,6 +41,9 @@ pub enum IdentCommand {
     /// PID gains minimizing the IAE of a step on a transfer function
     /// (rotary paper, eq. 19).
     PidIae(PidIaeArgs),
+    /// An H∞ loop-shaping torque controller designed for the machine that
+    /// made the data (crane paper, section 6.3), written into a config.
+    Hinf(crate::ident_hinf::IdentHinfArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]

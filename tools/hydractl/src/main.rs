@@ -8,6 +8,7 @@ mod can;
 mod control;
 mod doctor;
 mod ident;
+mod ident_hinf;
 mod model;
 mod progress;
 mod recording;

@@ -133,6 +133,15 @@ pub fn run(command: ModelCommand) -> Result<()> {
     }
 }
 
+/// Writes `header` (comment lines) and `config` to `out`, once the text
+/// loads as the config it is.
+pub(crate) fn write_config(out: &std::path::Path, header: String, config: &hydractl_config::Config) -> Result<()> {
+    let text = header + "\n" + &config.to_toml();
+    hydractl_config::Config::parse(&text, out)
+        .with_context(|| format!("the config written to {} does not load", out.display()))?;
+    std::fs::write(out, &text).with_context(|| format!("cannot write {}", out.display()))
+}
+
 fn compensate(args: CompensateArgs) -> Result<()> {
     let model = load_model(&args.model)?;
     let base = hydractl_config::Config::load_or_default(args.config.as_deref())?;
@@ -152,12 +161,7 @@ fn compensate(args: CompensateArgs) -> Result<()> {
             change.key, change.to, change.from, change.reason
         );
     }
-    text += "\n";
-    text += &tuned.config.to_toml();
-    // What is written must load as the config it is.
-    hydractl_config::Config::parse(&text, &args.out)
-        .with_context(|| format!("the tuned config for {} does not load", args.out.display()))?;
-    std::fs::write(&args.out, &text).with_context(|| format!("cannot write {}", args.out.display()))?;
+    write_config(&args.out, text, &tuned.config)?;
     if args.json {
         let json = serde_json::json!({
             "out": args.out,

@@ -356,6 +356,7 @@ fn watch(
     let machine_expected = config.machine.is_some();
     let mut cycles = 0u64;
     let mut faults = 0u64;
+    let mut faults_by_kind = std::collections::BTreeMap::new();
     let mut late = 0u64;
     let mut last_valve_seq: Option<u64> = None;
     let mut processes: Vec<ProcessSummary> = vec![ProcessSummary {
@@ -439,6 +440,11 @@ fn watch(
                 }
                 if v.faults != 0 {
                     faults += 1;
+                    for (flag, name) in hydractl_samples::fault::NAMES {
+                        if v.faults & flag != 0 {
+                            *faults_by_kind.entry(name).or_insert(0) += 1;
+                        }
+                    }
                 }
             }
             while let Some(x) = sensor.next()? {
@@ -695,6 +701,7 @@ fn watch(
         max_abs_tracking_error_rad: tracking.since_start().max_abs,
         rms_tracking_error_rad: tracking.since_start().rms,
         valve_fault_cycles: faults,
+        valve_fault_cycles_by_kind: faults_by_kind,
         valve_faults: valve_faults.faults,
         processes,
         faults: faults_seen,

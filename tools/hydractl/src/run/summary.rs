@@ -53,6 +53,9 @@ pub(super) struct RunSummary {
     pub(super) rms_tracking_error_rad: f64,
     /// Valve samples published in neutral with a fault flag.
     pub(super) valve_fault_cycles: u64,
+    /// The same cycles by flag (`stale`, `not_finite`, `out_of_range`,
+    /// `invalid_sensor`, `limit_cycle`, `device`): a cycle may have several.
+    pub(super) valve_fault_cycles_by_kind: std::collections::BTreeMap<&'static str, u64>,
     /// The machine's valve's latched faults (CAN), each with its reset.
     pub(super) valve_faults: Vec<valve_faults::ValveFaultSummary>,
     pub(super) processes: Vec<ProcessSummary>,
