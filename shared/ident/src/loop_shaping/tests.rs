@@ -66,3 +66,33 @@ fn the_crane_papers_controller_is_reproduced_from_its_plant_and_target() {
     }
     assert!(design.margins.closed_loop_stable);
 }
+
+/// The torque loop's plant of the simulated rotator (`ident hinf` fits it,
+/// coefficients from 1 to 10⁷): every crossover a user might ask for gives
+/// a controller that holds the model, its γ rising with the crossover.
+#[test]
+fn a_hydraulic_plant_is_designed_for_across_its_crossovers() {
+    let plant = tf(&[7.0552e6, 8.7560e6], &[1.0, 22.922, 1226.6, 7903.5, 1725.4]);
+    let mut previous_gamma = 1.0;
+    for crossover in [10.0, 20.0, 30.0, 40.0, 60.0] {
+        for roll_off in [300.0, 3000.0] {
+            let weight = PiWeight {
+                crossover_rad_s: crossover,
+                integral_corner_rad_s: crossover / 2.0,
+                roll_off_rad_s: roll_off,
+            }
+            .for_plant(&plant)
+            .expect("weight");
+            let design = design(&plant, &weight, 1.1).expect("design");
+            assert!(
+                design.margins.closed_loop_stable,
+                "{crossover} rad/s: {:?}",
+                design.margins
+            );
+            if roll_off == 300.0 {
+                assert!(design.gamma > previous_gamma, "{crossover} rad/s: γ {}", design.gamma);
+                previous_gamma = design.gamma;
+            }
+        }
+    }
+}
