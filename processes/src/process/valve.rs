@@ -239,6 +239,10 @@ pub fn run() -> Result<()> {
     // with both stopped (a stage spinning above it, the plant gone), this
     // clock does, within the timeout and a tick.
     let mut last_driven = Instant::now();
+    // Until the loop's first command the valve is still starting: the
+    // neutral it holds for readings no controller has answered yet (the
+    // machine's readings flow before the stages are up) is no fault.
+    let mut commanded = false;
     let valve_clock = Cell::new(ValveClock::new(&started.config, tick));
     let mut failure = None;
     started.enter_realtime();
@@ -272,6 +276,7 @@ pub fn run() -> Result<()> {
                     }),
                     Wake::Tick => None,
                 };
+                commanded |= command.is_some();
                 let decision = command.or_else(|| {
                     neutral
                         .map(|(command, faults)| {
@@ -296,6 +301,7 @@ pub fn run() -> Result<()> {
                     None if wake == Wake::Tick => actuator.refresh(tick)?,
                     None => {}
                     Some((seq, sensor_time_ns, command, requested, faults, variant)) => {
+                        let starting = if commanded { 0 } else { fault::OFF };
                         // Silent again after another timeout: said again.
                         last_driven = Instant::now();
                         if faults == ValveFaults::default() {
@@ -307,7 +313,7 @@ pub fn run() -> Result<()> {
                             stage_time_ns: clock::now_ns(),
                             command,
                             requested,
-                            faults: encode(faults),
+                            faults: encode(faults) | starting,
                             variant,
                         })?;
                         // The valve held neutral: the next command ramps

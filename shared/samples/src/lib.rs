@@ -121,8 +121,9 @@ pub mod fault {
     pub const INVALID_SENSOR: u32 = 1 << 3;
     /// The requested commands limit-cycle: neutral until they stop.
     pub const LIMIT_CYCLE: u32 = 1 << 4;
-    /// The valve process is starting or stopping: neutral, answering no
-    /// reading (its `sensor_seq` is the newest it knew, if any).
+    /// The valve process is starting (before the loop's first command) or
+    /// stopping: neutral, answering no reading of a closed loop (its
+    /// `sensor_seq` is the newest it knew, if any).
     pub const OFF: u32 = 1 << 5;
     /// The valve device (on CAN) has a latched fault: neutral until a
     /// person resets it (`hydractl valve reset`).
