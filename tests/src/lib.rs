@@ -1,5 +1,32 @@
 //! Helpers for tests that start the real processes: where the binaries
 //! are, a run under its own iceoryx2 prefix, and waiting on its status.
+//!
+//! What it holds: Tests that start the real processes: the shadow model
+//! (`shadow`: `config/machine-drift.toml`'s valve overlap opening detected
+//! and named a dead-zone of the right width, nothing raised on the unchanged
+//! machine); the vehicle (`vehicle`: no page fault on the loop in 30 s, a
+//! recording onto a full 1 MB disk, a ring within its limit; `package`: the
+//! `.deb`'s contents, its unit under `systemd-analyze verify`, the installed
+//! layout running the stack); a 10 s run against the offline simulation,
+//! `kill -9` of each controller, Ctrl-C, a start over a killed run's files;
+//! the valve path's safety (`valve_safety`: the valve neutral when stopped,
+//! killed or restarted, a spinning controller, a limit-cycling baseline over
+//! 60 s, a run of no duration); the stack on CAN (`can_stack`:
+//! `config/can.toml` against the shared-memory stack, a silent encoder and
+//! the fallback, `vehicle.toml` refused, the bus recorded frame for frame and
+//! read by Python's and Foxglove's readers; `can_valve_faults`: a killed
+//! valve process's fault latched across restarts of the process and the
+//! stack, `valve reset` refused while the loop asks for travel and accepted
+//! at neutral, the ramp after Active, bus-off, a stuck spool; `can_model`: a
+//! CAN run's recording with a valve kill fitted and diagnosed, the stand-in's
+//! friction named); the virtual CAN bus (`can_bus`: a hand-written candump
+//! log of a valve's, an encoder's and a transducer's frames replayed onto the
+//! bus and dumped back frame for frame, with its timing); recording (every
+//! published sample recorded, checked by an independent subscriber and by the
+//! Python `mcap` reader), a killed recorder, `record` attached to a run,
+//! replay into a lone process; four hot swaps and back with no missed cycle,
+//! refusals, `status --json`, restart rules, `SIGSTOP`, and a hundred `kill
+//! -9`s accounted for in the summary.
 
 pub mod can;
 
@@ -668,18 +695,33 @@ pub fn foxglove_view(path: &Path) -> Option<serde_json::Value> {
     )
 }
 
+/// Runs an outside reader. Only a reader that is not installed (no
+/// interpreter, or its library missing) may skip, and not when
+/// `required_by` is set; a reader that ran and rejected the recording
+/// fails the test.
 fn independent_view(what: &str, required_by: &str, command: &mut Command) -> Option<serde_json::Value> {
     let required = std::env::var(required_by).is_ok_and(|v| v == "1");
-    match command.output() {
-        Ok(out) if out.status.success() => Some(serde_json::from_slice(&out.stdout).expect("the reader's json")),
-        other => {
-            let why = match other {
-                Ok(out) => String::from_utf8_lossy(&out.stderr).into_owned(),
-                Err(e) => e.to_string(),
-            };
-            assert!(!required, "{what} failed: {why}");
-            eprintln!("SKIPPED the check by {what}: {why}");
-            None
+    let why = match command.output() {
+        Ok(out) if out.status.success() => {
+            return Some(serde_json::from_slice(&out.stdout).expect("the reader's json"));
         }
-    }
+        Ok(out) => {
+            let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+            let not_installed = [
+                "ModuleNotFoundError",
+                "ERR_MODULE_NOT_FOUND",
+                "Cannot find module",
+                "Cannot find package",
+            ]
+            .iter()
+            .any(|sign| stderr.contains(sign));
+            assert!(not_installed, "{what} rejected the recording: {stderr}");
+            stderr
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => e.to_string(),
+        Err(e) => panic!("{what} could not be started: {e}"),
+    };
+    assert!(!required, "{what} is not installed: {why}");
+    eprintln!("SKIPPED the check by {what}, not installed: {why}");
+    None
 }

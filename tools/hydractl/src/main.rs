@@ -1,4 +1,25 @@
 //! `hydractl`: the command line of the hydraulic rotator control stack.
+//!
+//! What it holds: The command line (every command in its `README.md`, the
+//! benchmarks' figures in `BENCHMARKS.md`; `run/monitor.rs`: what `run` makes
+//! of the samples, latency histograms, the tracking error over the last
+//! second and since the start, the live line; `run/summary.rs`, the summary's
+//! parts; `run/recording.rs`, the recording read back; `run/valve_faults.rs`;
+//! `run/virtual_machine.rs`, the virtual bus's wire and ECUs): `run`, `sim`
+//! (also `--valve-steps`), `plant`, `effects`, `linearize`, `ident
+//! tf/mech/spectrum/friction-map/pid-iae`, `model
+//! fit/compare/diagnose/add/report/compensate` (the report's plots by
+//! `plotters`; data from CSV or MCAP; `progress.rs`: `indicatif` bars for
+//! long work, on a terminal only), `swap`, `status`, `valve reset`
+//! (`control.rs`), `record`, `replay`, `mcap info`, `mcap export-csv`, `mcap
+//! export-candump`, `bench sim`, `bench latency`, `bench diagnose`, `bench
+//! foreign`, `bench record`, `bench stalls`, `bench syscalls` (`strace -c`
+//! attached to each stage of `bench latency`'s chain), `can
+//! budget/dump/replay`, `doctor` (`doctor.rs`: the computer against the
+//! config, check by check, read from `/proc`, `/sys`, `/dev` under a root
+//! that tests point at fixture trees). `debian/`: the package's unit,
+//! maintainer script, system user and udev rule (`[package.metadata.deb]` in
+//! its `Cargo.toml`).
 
 mod bench_latency;
 mod bench_record;
@@ -245,10 +266,34 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::from(EXIT_RECORDING_INCOMPLETE)
         }
         Err(e) => {
-            eprintln!("Error: {e:?}");
+            // One line for a user; the chain with its backtrace when asked
+            // for with `--log-level debug`.
+            if tracing::enabled!(tracing::Level::DEBUG) {
+                eprintln!("Error: {e:?}");
+            } else {
+                eprintln!("Error: {}", one_line(&e));
+            }
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes on one line, `a: b: c`, each cause left out
+/// when the message before already says it ("cannot read x: No such file
+/// or directory" is not followed by "No such file or directory" again).
+fn one_line(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line += ": ";
+        }
+        line += &text;
+    }
+    line
 }
 
 fn run_command() -> Result<()> {

@@ -3,11 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use hydractl_system_tests::{scratch_dir, ScratchDir};
-
-fn hydractl() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_hydractl"))
-}
+use hydractl_system_tests::{hydractl, scratch_dir, ScratchDir};
 
 fn scratch(name: &str) -> ScratchDir {
     scratch_dir(&format!("cli-{name}"))
@@ -497,18 +493,6 @@ fn a_run_too_long_to_simulate_is_refused_before_it_starts() {
     assert!(err.contains("1000000000") && err.contains("simulated days"), "{err}");
     // Refused at once, not after allocating or simulating anything.
     assert!(started.elapsed() < std::time::Duration::from_secs(5));
-}
-
-#[test]
-fn exit_status_is_0_on_success_1_on_failure_2_on_usage() {
-    assert_eq!(hydractl().arg("effects").output().expect("runs").status.code(), Some(0));
-    let usage = hydractl().args(["sim", "--no-such-flag"]).output().expect("runs");
-    assert_eq!(usage.status.code(), Some(2));
-    let failure = hydractl()
-        .args(["sim", "--duration", "1", "--config", "/no/such/config.toml"])
-        .output()
-        .expect("runs");
-    assert_eq!(failure.status.code(), Some(1));
 }
 
 #[test]

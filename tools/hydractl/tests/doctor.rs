@@ -4,13 +4,8 @@
 //! as those kernels write them.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-use hydractl_system_tests::{scratch_dir, ScratchDir};
-
-fn hydractl() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_hydractl"))
-}
+use hydractl_system_tests::{hydractl, scratch_dir, ScratchDir};
 
 fn vehicle_config() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/vehicle.toml")

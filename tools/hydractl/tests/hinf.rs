@@ -5,11 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use hydractl_system_tests::scratch_dir;
-
-fn hydractl() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_hydractl"))
-}
+use hydractl_system_tests::{hydractl, scratch_dir};
 
 fn run_ok(command: &mut Command) -> String {
     let out = command.output().expect("runs");
