@@ -16,7 +16,7 @@ use anyhow::{Context, Result};
 use hydractl_bus::can::{open_port, CanPort, Filter};
 use hydractl_bus::{clock, wait_input, Bus};
 use hydractl_can::canopen::{self, cob_id, NmtCommand, NmtState, NodeId};
-use hydractl_can::ecu::set_heartbeat;
+use hydractl_can::heartbeat::set_heartbeat;
 use hydractl_can::master::{SensorMaster, SensorValues};
 use hydractl_can::profile::{Pdo, Profile};
 use hydractl_can::valve::DeviceState;

@@ -1,5 +1,42 @@
 //! What every process does at start-up: read its arguments and config,
 //! quiet iceoryx2's logging, open its node in the run's scope.
+//!
+//! What it holds: One binary per process, each a line that calls its loop in
+//! the library's `process` module (compiled once for all, not once per
+//! binary): `plant`, `machine`, `sensor`, `friction`, `position`, `torque`,
+//! `valve`, `supervisor`, `recorder`, `canbus` (the virtual CAN bus's wire:
+//! `hydractl/can/<interface>/tx` in, arbitration and bus time by
+//! `hydractl-can`'s `Wire`, `…/rx` out to every station), `shadow` (the model
+//! beside the machine, `[shadow] model`: off the loop's CPU, reads the
+//! readings and valve commands, publishes `hydractl/shadow` and
+//! `hydractl/shadow/drift`, diagnoses a drift in a one-thread pool of its
+//! own), `ecus` (the machine's CANopen nodes on the virtual bus:
+//! `hydractl-can`'s simulated ECUs on the `[machine]` rotator, integrated in
+//! real time between frames); a small library for start-up (`logging`: the
+//! `tracing` subscriber of every process and of `hydractl`, text or the
+//! systemd journal with its fields; locked memory before real time);
+//! `supervisor`, the watchdog's whole logic, one file per concern (`child`:
+//! spawning, reaping, back-off; `heartbeats`; `faults`: hang, spin (CPU time)
+//! and blame judgements, how a limit-cycling controller comes back; `seat`:
+//! the plant seat and its fallback; `swaps`: hot swaps (each judged by the
+//! tracking error that follows, `tracking.rs`, and swapped back when it made
+//! tracking worse), handovers, events, systemd's readiness and watchdog
+//! (`service_manager.rs`, `sd-notify`); `valve_log`: judging a switch from
+//! the valve's samples; `status`; `recorder`), each with unit tests, which
+//! the `supervisor` binary only wires to its node and ticks; `live_plant`
+//! (the paced plant loop shared by the simulated plant and the machine,
+//! stand-in or on CAN), `can_sensors` (the machine's sensors on CAN: SYNC,
+//! one period's PDOs until their deadline, heartbeats), `can_valve` (the
+//! machine's valve on CAN: its guard verified by SDO, bring-up, set point,
+//! every fault latched to disk until a person's reset, `valve_latch`),
+//! `process/valve_desk.rs` (the valve's state published and `valve reset`
+//! answered), `handover` (every handover read in order and acknowledged,
+//! `HandoverInbox`; a controller's part in a hot swap: standby, exact
+//! tracking, takeover at a named reading; and the plant seat, which of
+//! machine and simulated plant publishes the readings), `recording` (taps
+//! that drain services into a recording, republishers for replay), and
+//! `shadow` (the shadow's rows joined from readings and valve commands, its
+//! windows, its drift from alarm to named effect).
 
 use std::path::PathBuf;
 

@@ -14,6 +14,7 @@ use hydractl_ident::greybox::{
 };
 use hydractl_ident::Dataset;
 use hydractl_plant::EffectKind;
+use hydractl_plant::PA_PER_BAR;
 use hydractl_samples::{drift, fixed_name, ModelDrift, PlantReading, ShadowSample, ValveSample};
 
 /// One control period as the model reads it: `t, u, p_a (bar), p_b, theta`.
@@ -93,8 +94,8 @@ impl Rows {
         let row = [
             r.sensor_seq as f64 * self.period_s,
             self.command,
-            r.p_a * 1e-5,
-            r.p_b * 1e-5,
+            r.p_a / PA_PER_BAR,
+            r.p_b / PA_PER_BAR,
             r.angle,
         ];
         if row.iter().all(|v| v.is_finite()) {

@@ -229,10 +229,7 @@ fn put_back_as_recorded(
 
 /// Whether a kernel CPU list such as `0-3,6` holds `cpu`.
 fn cpu_list_has(list: &str, cpu: usize) -> bool {
-    list.split(',').any(|part| match part.split_once('-') {
-        Some((a, b)) => matches!((a.parse::<usize>(), b.parse::<usize>()), (Ok(a), Ok(b)) if (a..=b).contains(&cpu)),
-        None => part.parse() == Ok(cpu),
-    })
+    hydractl_bus::placement::CpuList::parse(list).is_some_and(|l| l.contains(cpu))
 }
 
 /// The kernel's present limit on CPU idle exit latency, µs, when this

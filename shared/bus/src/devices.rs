@@ -1,7 +1,8 @@
-//! The seam between the control stack and the machine. The sensor process
-//! reads through a [`SensorDevice`] and the valve process drives a
-//! [`ValveDevice`]; the simulated plant implements both over shared memory
-//! now, SocketCAN devices will implement them on the vehicle.
+//! The sensor process's seam to the machine: it reads through a
+//! [`SensorDevice`], which the simulated plant's readings implement (on
+//! CAN, the `machine` process publishes the same readings). The valve's
+//! own seam is its process's actuator, the simulated plant or the CAN
+//! valve (`hydractl_processes::process::valve`).
 
 use hydractl_samples::{service, PlantReading};
 
@@ -28,11 +29,6 @@ pub trait SensorDevice {
     fn try_read(&self) -> Result<Option<DeviceReading>, BusError>;
     /// What to wait on for new readings.
     fn input(&self) -> Input<'_>;
-}
-
-pub trait ValveDevice {
-    /// Drives the valve with `command` in [-1, 1].
-    fn drive(&mut self, command: f64) -> Result<(), BusError>;
 }
 
 /// The simulated plant's sensor bus.
@@ -66,15 +62,5 @@ impl SensorDevice for SimulatedSensors {
             p_b: r.p_b,
             source: r.source,
         }))
-    }
-}
-
-/// The simulated plant reads the valve's published state itself, so driving
-/// it needs nothing more; a CAN valve will send a frame here.
-pub struct SimulatedValve;
-
-impl ValveDevice for SimulatedValve {
-    fn drive(&mut self, _command: f64) -> Result<(), BusError> {
-        Ok(())
     }
 }

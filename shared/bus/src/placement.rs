@@ -247,12 +247,14 @@ fn steer_interrupts_recorded_in(
             .iter()
             .find(|(recorded_irq, _)| *recorded_irq == irq)
             .map_or(now.clone(), |(_, was)| was.clone());
-        let Some(cpus) = parse_cpu_list(&was) else { continue };
-        let others: Vec<usize> = cpus.iter().copied().filter(|&c| c != cpu).collect();
-        if others.len() == cpus.len() || others.is_empty() {
+        let Some(cpus) = CpuList::parse(&was).filter(|l| !l.is_empty()) else {
+            continue;
+        };
+        let others = CpuList(cpus.cpus().iter().copied().filter(|&c| c != cpu).collect());
+        if others.cpus().len() == cpus.cpus().len() || others.is_empty() {
             continue;
         }
-        plan.push((irq, was, now, format_cpu_list(&others)));
+        plan.push((irq, was, now, others.to_string()));
     }
     // The record first: should this process die half-way, the next run
     // still knows what to put back.
@@ -290,7 +292,8 @@ fn parse_record(text: &str) -> Result<Vec<(String, String)>, usize> {
             let mut fields = line.split_whitespace();
             match (fields.next(), fields.next(), fields.next()) {
                 (Some(irq), Some(list), None)
-                    if irq.bytes().all(|b| b.is_ascii_digit()) && parse_cpu_list(list).is_some() =>
+                    if irq.bytes().all(|b| b.is_ascii_digit())
+                        && CpuList::parse(list).is_some_and(|l| !l.is_empty()) =>
                 {
                     Ok((irq.to_owned(), list.to_owned()))
                 }
@@ -300,20 +303,43 @@ fn parse_record(text: &str) -> Result<Vec<(String, String)>, usize> {
         .collect()
 }
 
-/// The CPUs of a kernel CPU list such as `0-3,6`; `None` if it is not one.
-fn parse_cpu_list(list: &str) -> Option<Vec<usize>> {
-    let mut cpus = Vec::new();
-    for part in list.split(',').filter(|p| !p.is_empty()) {
-        match part.split_once('-') {
-            Some((first, last)) => cpus.extend(first.parse::<usize>().ok()?..=last.parse().ok()?),
-            None => cpus.push(part.parse().ok()?),
+/// A kernel CPU list, as `/proc`, `/sys` and the boot parameters write one
+/// (`0-3,6`), and as `smp_affinity_list` takes one back (`0,1,2,3,6`).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct CpuList(Vec<usize>);
+
+impl CpuList {
+    /// The CPUs of `text` (surrounding white space ignored; an empty list is
+    /// empty); `None` if it is not a CPU list.
+    pub fn parse(text: &str) -> Option<CpuList> {
+        let mut cpus = Vec::new();
+        for part in text.trim().split(',').filter(|p| !p.is_empty()) {
+            match part.split_once('-') {
+                Some((first, last)) => cpus.extend(first.parse::<usize>().ok()?..=last.parse().ok()?),
+                None => cpus.push(part.parse().ok()?),
+            }
         }
+        Some(CpuList(cpus))
     }
-    (!cpus.is_empty()).then_some(cpus)
+
+    pub fn cpus(&self) -> &[usize] {
+        &self.0
+    }
+
+    pub fn contains(&self, cpu: usize) -> bool {
+        self.0.contains(&cpu)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
 }
 
-fn format_cpu_list(cpus: &[usize]) -> String {
-    cpus.iter().map(usize::to_string).collect::<Vec<_>>().join(",")
+impl std::fmt::Display for CpuList {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parts: Vec<String> = self.0.iter().map(usize::to_string).collect();
+        f.write_str(&parts.join(","))
+    }
 }
 
 /// What a run holds for its loop while it lasts: the idle-latency request
@@ -406,12 +432,15 @@ mod tests {
 
     #[test]
     fn cpu_lists_read_and_write_as_the_kernel_does() {
-        assert_eq!(parse_cpu_list("0-1"), Some(vec![0, 1]));
-        assert_eq!(parse_cpu_list("0,2-4,7"), Some(vec![0, 2, 3, 4, 7]));
-        assert_eq!(parse_cpu_list("3"), Some(vec![3]));
-        assert_eq!(parse_cpu_list(""), None);
-        assert_eq!(parse_cpu_list("0-x"), None);
-        assert_eq!(format_cpu_list(&[0, 2, 3]), "0,2,3");
+        let cpus = |text: &str| CpuList::parse(text).map(|l| l.cpus().to_vec());
+        assert_eq!(cpus("0-1"), Some(vec![0, 1]));
+        assert_eq!(cpus("0,2-4,7"), Some(vec![0, 2, 3, 4, 7]));
+        assert_eq!(cpus("3"), Some(vec![3]));
+        assert_eq!(cpus("1-3,5\n"), Some(vec![1, 2, 3, 5]));
+        assert_eq!(cpus("\n"), Some(vec![]));
+        assert_eq!(cpus("0-x"), None);
+        assert_eq!(CpuList(vec![0, 2, 3]).to_string(), "0,2,3");
+        assert!(CpuList::parse("0-3,6").expect("list").contains(2));
     }
 
     #[test]

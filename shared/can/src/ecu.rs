@@ -7,9 +7,9 @@
 //! process or a test moves the frames.
 
 use crate::canopen::{
-    self, cob_id, decode_heartbeat, decode_nmt, emcy_code, Emergency, NmtCommand, NmtState, NodeId, SdoRequest,
-    SdoResponse,
+    self, cob_id, decode_nmt, emcy_code, Emergency, NmtCommand, NmtState, NodeId, SdoRequest, SdoResponse,
 };
+use crate::heartbeat::HEARTBEAT_PRODUCER;
 use crate::profile::{PressureChannel, Profile};
 use crate::valve::{self, object as valve_object, DeviceState, StateMachine};
 use crate::Frame;
@@ -136,8 +136,6 @@ impl NodeCore {
 /// timeout, so a master that forgets to set it finds every node lost.
 pub const FACTORY_HEARTBEAT_MS: u16 = 1000;
 
-/// Object 0x1017: the heartbeat producer time, ms (UNSIGNED16).
-pub const HEARTBEAT_PRODUCER: u16 = 0x1017;
 /// Object 0x1400 + n − 1: RPDO n's communication parameters.
 pub const RPDO_COMMUNICATION: u16 = 0x1400;
 /// Its sub-index 5, the event timer: for an RPDO, CiA 301's deadline
@@ -146,17 +144,6 @@ pub const RPDO_COMMUNICATION: u16 = 0x1400;
 pub const RPDO_EVENT_TIMER: u8 = 5;
 /// SDO abort: the object does not exist in the object dictionary.
 const NO_SUCH_OBJECT: u32 = 0x0602_0000;
-
-/// The master's SDO download of a node's heartbeat producer time.
-pub fn set_heartbeat(node: NodeId, heartbeat_ms: u16) -> Frame {
-    SdoRequest::Download {
-        index: HEARTBEAT_PRODUCER,
-        sub: 0,
-        value: [heartbeat_ms.to_le_bytes()[0], heartbeat_ms.to_le_bytes()[1], 0, 0],
-        len: 2,
-    }
-    .to_frame(node)
-}
 
 /// A CiA 408 proportional valve (as the PVED-CC behaves).
 #[derive(Debug, Clone, Copy)]
@@ -471,54 +458,11 @@ impl SensorEcu {
     }
 }
 
-/// The master's view of a heartbeat: which state a node last reported and
-/// when, and whether it has been silent too long (CiA 301's heartbeat
-/// consumer).
-#[derive(Debug, Clone, Copy)]
-pub struct HeartbeatWatch {
-    node: NodeId,
-    timeout_ns: u64,
-    last_ns: Option<u64>,
-    state: Option<NmtState>,
-}
-
-impl HeartbeatWatch {
-    pub fn new(node: NodeId, timeout_ms: u16) -> Self {
-        Self {
-            node,
-            timeout_ns: u64::from(timeout_ms) * 1_000_000,
-            last_ns: None,
-            state: None,
-        }
-    }
-
-    /// Takes the node's heartbeat; false for any other frame.
-    pub fn on_frame(&mut self, frame: &Frame, now_ns: u64) -> bool {
-        match decode_heartbeat(frame) {
-            Ok((node, state)) if node == self.node => {
-                self.last_ns = Some(now_ns);
-                self.state = Some(state);
-                true
-            }
-            _ => false,
-        }
-    }
-
-    pub fn state(&self) -> Option<NmtState> {
-        self.state
-    }
-
-    /// Heard once, and not for longer than the timeout since: lost. A node
-    /// never heard is not lost, only not there yet.
-    pub fn lost(&self, now_ns: u64) -> bool {
-        self.last_ns.is_some_and(|t| now_ns.saturating_sub(t) > self.timeout_ns)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::canopen::nmt;
+    use crate::heartbeat::{set_heartbeat, HeartbeatWatch};
     use crate::profile::CanConfig;
     use crate::valve::next_control_word;
     use crate::wire::Wire;

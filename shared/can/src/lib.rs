@@ -9,8 +9,9 @@
 //!   set point and spool position);
 //! - [`encoder`]: CiA 406, the angle encoder;
 //! - [`pressure`]: CiA 404, the pressure transducers;
-//! - [`ecu`]: the simulated ECUs (valve, encoder, transducers) and the
-//!   master's heartbeat consumer;
+//! - [`ecu`]: the simulated ECUs (valve, encoder, transducers);
+//! - [`heartbeat`]: the producer time a master sets, and its watch of each
+//!   node's heartbeat (the consumer);
 //! - [`master`]: the master's side: the SYNC producer and PDO consumer,
 //!   and the valve's bring-up, set point and status;
 //! - [`settings`]: a device's settings written by SDO and read back
@@ -33,6 +34,7 @@ pub mod canopen;
 pub mod ecu;
 pub mod encoder;
 mod frame;
+pub mod heartbeat;
 pub mod master;
 pub mod pressure;
 pub mod profile;

@@ -13,7 +13,8 @@
 //!   person's reset.
 
 use crate::canopen::{self, cob_id, Emergency, NmtCommand, NmtState, NodeId, SdoResponse};
-use crate::ecu::{set_heartbeat, HeartbeatWatch, HEARTBEAT_PRODUCER, RPDO_COMMUNICATION, RPDO_EVENT_TIMER};
+use crate::ecu::{RPDO_COMMUNICATION, RPDO_EVENT_TIMER};
+use crate::heartbeat::{set_heartbeat, HeartbeatWatch, HEARTBEAT_PRODUCER};
 use crate::profile::{Pdo, PressureChannel, Profile};
 use crate::settings::{Setting, SettingsCheck};
 use crate::valve::{self, DeviceState};

@@ -3,6 +3,13 @@
 //! timing and supervision. Unknown keys are errors, so a typo never
 //! silently falls back to a default; a file may start from a `base` and
 //! give only what differs.
+//!
+//! What it holds: The TOML config: the file's sections (`timing`, `control`,
+//! `supervisor`, the plant's, the machine stand-in's, `log`, `recording`),
+//! loading with `base = "FILE"` chains, and validation: every key checked,
+//! every controller of the structure in charge built once at load, each error
+//! naming the file and section; `compensate`: the controllers' compensators
+//! set from a fitted model's effects, each change with its reason.
 
 pub mod compensate;
 mod control;

@@ -3,6 +3,16 @@
 //! given output so that a switch between variants is bumpless. No IPC here:
 //! the processes wire these to shared memory; the offline simulator calls
 //! them directly.
+//!
+//! What it holds: PID with anti-windup, the crane paper's friction
+//! compensation (eq. 1), the rotary paper's model-following controller, an H∞
+//! torque controller (the crane paper's eq. 8, or a design for the machine
+//! with its design record) as a ZOH state-space system, valve shaping
+//! (asymmetric-gain and dead-zone inverses, limit, rate limit), velocity
+//! estimation, reference trajectories, limit-cycle detection (the valve's
+//! guard). Every controller allocates nothing per step, resets, and
+//! initializes from a given output (bumpless; `FadingTransfer` where its
+//! state is not forced).
 
 mod friction;
 mod hinf;

@@ -5,6 +5,13 @@
 //! Conventions: polynomials are coefficient vectors in descending powers of
 //! `s` (or `z`), as MATLAB writes them; continuous time unless a type says
 //! `Discrete`.
+//!
+//! What it holds: Polynomials, transfer functions, state space (balanced
+//! eigenvalues, determinant-lemma transfer functions), ZOH discretization,
+//! series connection, frequency response, closed-loop poles, continuous
+//! Riccati equations by the matrix sign function (`riccati`), analytic step
+//! responses, and `DiscreteSiso`, an allocation-free discrete system for
+//! real-time loops.
 
 mod discrete;
 mod poly;

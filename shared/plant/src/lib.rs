@@ -1,5 +1,18 @@
 //! The hydraulic rotary actuator: the papers' physics, the effect catalog,
 //! sensors, fixed-step integration and linearization. No IPC here.
+//!
+//! What it holds: The rotator of the papers (spool eq. 10, flow eq. 9,
+//! pressures eq. 8, torque eq. 7, mechanics eq. 5), the effect catalog
+//! (`deadzone`, `saturation`, `time_delay`, `asymmetric_gain`,
+//! `orifice_flow`, `coulomb_friction`, `gravity_load`, `backlash`,
+//! `quantization`, `load_flexibility`), sensor models, RK4 integration with
+//! an explicit stick/slip state, linearization (analytic and by finite
+//! differences), `affine_step` (the exact step of a map that is affine by
+//! pieces, taken by the simulator and by identification alike), and `Drift`:
+//! one effect's parameter moving over time (`[machine.drift]`), every step
+//! built at start-up. The hydraulic half (`hydraulics`) and the mechanical
+//! half (`mechanics`) are free functions, so that model identification drives
+//! each with measured signals.
 
 mod drift;
 pub mod effects;
@@ -11,6 +24,10 @@ mod plant;
 mod sensor;
 
 pub use drift::{Drift, DriftSpec};
+
+/// Pascal per bar. The plant, its parameters and the live samples hold
+/// pressures in Pa; CSV data and the exports of recordings in bar.
+pub const PA_PER_BAR: f64 = 1e5;
 pub use effects::{Effect, EffectKind, Effects, EffectsConfig, ParamSpec};
 pub use linearize::{affine_step, baseline_linear_model, LINEAR_OUTPUTS, LINEAR_STATES, TORQUE_OUTPUT};
 pub use params::{PlantParams, SensorParams};

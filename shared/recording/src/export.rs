@@ -1,6 +1,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use hydractl_plant::PA_PER_BAR;
 use hydractl_samples::{
     service, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
 };
@@ -202,7 +203,12 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
         if v.is_none() || p.is_none() {
             held += 1;
         }
-        (row.t, row.p_a, row.p_b, row.theta) = ((seq - start) as f64 * period_s, r.p_a * 1e-5, r.p_b * 1e-5, r.angle);
+        (row.t, row.p_a, row.p_b, row.theta) = (
+            (seq - start) as f64 * period_s,
+            r.p_a / PA_PER_BAR,
+            r.p_b / PA_PER_BAR,
+            r.angle,
+        );
         if let Some(v) = v {
             (row.u, row.valve_requested) = (v.command, v.requested);
         }

@@ -3,6 +3,17 @@
 //! the sample's `ros2msg` schema, so Foxglove and PlotJuggler decode it by
 //! reflection. This crate knows files and bytes, not IPC: the recorder
 //! process feeds it what it receives.
+//!
+//! What it holds: MCAP recordings of samples, knowing files and bytes, not
+//! IPC: the writer (one channel per service, CDR messages with `ros2msg`
+//! schemas, a CAN bus's frames as ROS 2 `can_msgs/msg/Frame` (`can`), zstd
+//! chunks in the writer's own thread, closed by the writer itself, metadata,
+//! splitting by size or duration, a ring of parts within `keep_bytes`
+//! spanning earlier runs, a full disk met without an error: what never
+//! reached a file read back and counted, writing stopped or the oldest part
+//! deleted), the reader (up to the last whole chunk of a cut file, every bad
+//! message named), `mcap info`'s summary, and the model tools' rows
+//! (`export-csv`).
 
 mod can;
 mod export;

@@ -8,6 +8,15 @@
 //! `stage_time_ns`, when its own stage published it, so latency and
 //! causality are read from the data. Times are CLOCK_MONOTONIC nanoseconds,
 //! shared by every process on the machine.
+//!
+//! What it holds: Every `#[repr(C)]` sample type (iceoryx2 `ZeroCopySend`,
+//! `bytemuck::Pod`) and every service name. Each sample carries its sensor
+//! reading's sequence number and timestamp and its own stage's timestamp.
+//! `schema`: each type's `ros2msg` schema and where its sequence and
+//! timestamp sit (and which fields are text), `cdr`: the CDR encoding of a
+//! sample with text, its NUL-padded fields as ROS 2 strings and back, the
+//! stack's services with their types, and `visit_kind`, the one place where a
+//! type name read at run time becomes a Rust type.
 
 use bytemuck::{Pod, Zeroable};
 use iceoryx2::prelude::*;
@@ -175,6 +184,23 @@ pub mod code {
     pub const EVENT_STRANGER: u32 = 9;
     /// [`crate::ValveRequest`] kinds: reset the valve's latched fault.
     pub const VALVE_RESET: u32 = 1;
+
+    /// An event kind's word, as summaries and logs write it.
+    pub fn event_name(kind: u32) -> &'static str {
+        match kind {
+            EVENT_SWAP => "swap",
+            EVENT_SWAP_FAILED => "swap_failed",
+            EVENT_CRASH => "crash",
+            EVENT_HANG => "hang",
+            EVENT_FALLBACK => "fallback",
+            EVENT_PLANT_SWITCH => "plant_switch",
+            EVENT_MISBEHAVING => "misbehaving",
+            EVENT_LIMIT_CYCLE => "limit_cycle",
+            EVENT_SPIN => "spin",
+            EVENT_STRANGER => "stranger",
+            _ => "unknown",
+        }
+    }
 
     pub fn variant_name(variant: u32) -> &'static str {
         match variant {

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use hydractl_plant::{Effect, Plant, PlantError, SensorModel};
+use hydractl_plant::{Effect, Plant, PlantError, SensorModel, PA_PER_BAR};
 use serde::Serialize;
 
 use crate::metrics;
@@ -147,8 +147,8 @@ pub fn simulate_valve_steps(
             records.push(Record {
                 t: records.len() as f64 * period,
                 u: command,
-                p_a: raw.p_a * 1e-5,
-                p_b: raw.p_b * 1e-5,
+                p_a: raw.p_a / PA_PER_BAR,
+                p_b: raw.p_b / PA_PER_BAR,
                 theta: raw.angle,
                 torque: plant.params().displacement * (raw.p_a - raw.p_b),
                 theta_true: state.angle,
@@ -237,8 +237,8 @@ pub fn simulate_streaming(
         let record = Record {
             t: time,
             u: out.command,
-            p_a: raw.p_a * 1e-5,
-            p_b: raw.p_b * 1e-5,
+            p_a: raw.p_a / PA_PER_BAR,
+            p_b: raw.p_b / PA_PER_BAR,
             theta: raw.angle,
             theta_ref: out.position.reference.angle,
             omega_ref: out.position.reference.velocity,

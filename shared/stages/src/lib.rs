@@ -3,6 +3,12 @@
 //! simulator calls them in sequence in one process ([`ControlStack`]); the
 //! live processes wire the same objects to shared memory, which is why each
 //! stage takes plain values and keeps its own state.
+//!
+//! What it holds: The five stages exactly as the live processes run them, one
+//! file each: sensor → friction → position → torque → valve (the valve's
+//! guard: stale, garbage, invalid-reading and limit-cycle checks), and
+//! `ControlStack`, all five in one process. Every live stage process imports
+//! its stage from here.
 
 mod friction;
 mod position;

@@ -7,6 +7,13 @@
 //! `gungraun-runner` of the library's version are needed; `.ci/run`
 //! installs both); `tools/benches/guard.py` holds them to
 //! `tools/benches/baselines.json`.
+//!
+//! What it holds: The counts CI holds: `gungraun` (callgrind) benchmarks of
+//! one simulated second of `sim`'s loop, one period of each stage, one `model
+//! diagnose` of a fixed record and one MCAP write of a fixed batch
+//! (`benches/instructions.rs`, fixtures in `src/lib.rs`); `baselines.json`,
+//! and `guard.py`, which fails when a count (or `bench syscalls`' system
+//! calls per hop) grows over its baseline by more than 10 %.
 
 use std::path::{Path, PathBuf};
 

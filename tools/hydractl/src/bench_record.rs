@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, Outlet, RunScope};
 use hydractl_config::Config;
+use hydractl_plant::PA_PER_BAR;
 use hydractl_processes::recording::Recorder;
 use hydractl_recording::{RecordOptions, RecordingWriter};
 use hydractl_samples::{
@@ -56,8 +57,8 @@ fn cycles(n: usize) -> Result<Vec<Cycle>> {
                     sensor_seq: seq,
                     sensor_time_ns: t,
                     angle: r.theta,
-                    p_a: r.p_a * 1e5,
-                    p_b: r.p_b * 1e5,
+                    p_a: r.p_a * PA_PER_BAR,
+                    p_b: r.p_b * PA_PER_BAR,
                     true_angle: r.theta_true,
                     late_commands: 0,
                     ..PlantReading::default()
@@ -68,8 +69,8 @@ fn cycles(n: usize) -> Result<Vec<Cycle>> {
                     stage_time_ns: t + 12_000,
                     angle: r.theta,
                     velocity: r.omega_est,
-                    p_a: r.p_a * 1e5,
-                    p_b: r.p_b * 1e5,
+                    p_a: r.p_a * PA_PER_BAR,
+                    p_b: r.p_b * PA_PER_BAR,
                     torque: r.torque,
                     valid: 7,
                     source: 0,

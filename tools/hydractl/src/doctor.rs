@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
+use hydractl_bus::placement::CpuList;
 use hydractl_config::Config;
 use serde::Serialize;
 
@@ -211,19 +212,9 @@ fn preempt_rt(host: &Host) -> Check {
     }
 }
 
-/// The CPUs of a kernel CPU list (`1-3,5`).
+/// The CPUs of a kernel CPU list (`1-3,5`); none when it is not one.
 fn cpu_list(text: &str) -> Vec<usize> {
-    text.trim()
-        .split(',')
-        .filter(|part| !part.is_empty())
-        .flat_map(|part| match part.split_once('-') {
-            Some((a, b)) => match (a.parse::<usize>(), b.parse::<usize>()) {
-                (Ok(a), Ok(b)) if a <= b => (a..=b).collect(),
-                _ => Vec::new(),
-            },
-            None => part.parse().map(|c| vec![c]).unwrap_or_default(),
-        })
-        .collect()
+    CpuList::parse(text).map(|l| l.cpus().to_vec()).unwrap_or_default()
 }
 
 /// A `key=value` of the kernel's command line.

@@ -1,7 +1,7 @@
 //! The measured signals the grey-box model is compared with, in SI units,
 //! with the smoothed angle and velocity the model's segments start from.
 
-use hydractl_plant::{EffectKind, PlantParams};
+use hydractl_plant::{EffectKind, PlantParams, PA_PER_BAR};
 
 use super::{ModelError, Part, SEGMENT_S};
 use crate::Dataset;
@@ -98,7 +98,8 @@ impl Signals {
             ));
         }
         let n = t.len();
-        let bar = |p: Option<Vec<f64>>| p.map_or_else(|| vec![f64::NAN; n], |p| p.iter().map(|v| v * 1e5).collect());
+        let bar =
+            |p: Option<Vec<f64>>| p.map_or_else(|| vec![f64::NAN; n], |p| p.iter().map(|v| v * PA_PER_BAR).collect());
         let has_command = u.is_some();
         let u = u.unwrap_or_else(|| vec![0.0; n]);
         let (p_a, p_b) = (bar(p_a), bar(p_b));

@@ -563,13 +563,7 @@ fn watch(
                     | code::EVENT_SPIN => {
                         let fault = FaultSummary {
                             process: name_str(&e.process).to_owned(),
-                            kind: match e.kind {
-                                code::EVENT_CRASH => "crash",
-                                code::EVENT_HANG => "hang",
-                                code::EVENT_LIMIT_CYCLE => "limit_cycle",
-                                code::EVENT_SPIN => "spin",
-                                _ => "misbehaving",
-                            },
+                            kind: code::event_name(e.kind),
                             pid: e.pid,
                             last_seq: e.sensor_seq,
                             detected_after_ms: e.detected_after_ns as f64 * 1e-6,
