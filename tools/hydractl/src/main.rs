@@ -33,6 +33,7 @@ mod ident_hinf;
 mod model;
 mod progress;
 mod recording;
+mod reference;
 mod report;
 mod run;
 mod slowest;
