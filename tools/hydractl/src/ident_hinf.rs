@@ -132,7 +132,16 @@ fn identify_plant(args: &IdentHinfArgs) -> Result<TfFit> {
     if subtract {
         columns.push(&args.feedforward);
     }
-    let data = load_dataset(&args.data, &columns)?;
+    let data = load_dataset(&args.data, &columns).with_context(|| {
+        if subtract {
+            format!(
+                "the plant's input is `{}` minus `{}`, the command the controller does not make (`--feedforward none` when the data has none)",
+                args.input, args.feedforward
+            )
+        } else {
+            format!("the plant's input is `{}`", args.input)
+        }
+    })?;
     let mut input = data.column(&args.input)?.to_vec();
     if subtract {
         for (u, f) in input.iter_mut().zip(data.column(&args.feedforward)?) {
@@ -147,13 +156,21 @@ fn identify_plant(args: &IdentHinfArgs) -> Result<TfFit> {
     };
     hydractl_ident::identify_tf(&input, data.column(&args.output)?, data.sample_time()?, options).with_context(|| {
         format!(
-            "identifying the torque loop's plant ({} − {} → {}) in {}",
-            args.input,
-            args.feedforward,
+            "identifying the torque loop's plant ({} → {}) in {}",
+            plant_input(args),
             args.output,
             args.data.display()
         )
     })
+}
+
+/// The plant's input as the reports name it: `u − friction_comp`, or `u`.
+fn plant_input(args: &IdentHinfArgs) -> String {
+    if args.feedforward == "none" {
+        args.input.clone()
+    } else {
+        format!("{} − {}", args.input, args.feedforward)
+    }
 }
 
 fn params(
@@ -213,12 +230,11 @@ fn report(args: &IdentHinfArgs, fit: &TfFit, designed: &LoopShapingDesign, warni
     let fmt = |p: &[f64]| p.iter().map(|c| format!("{c:.4e}")).collect::<Vec<_>>().join(", ");
     let optional = |v: Option<f64>, unit: &str| v.map_or("none".to_owned(), |v| format!("{v:.1} {unit}"));
     let mut text = format!(
-        "plant ({} − {} → {}): num [{}], den [{}], fit {:.1}% on validation\n\
+        "plant ({} → {}): num [{}], den [{}], fit {:.1}% on validation\n\
          weight W1: num [{}], den [{}]\n\
          γ = {:.3} (optimum {:.3}, ε = {:.3}), a controller of {} states\n\
          loop around the model: crossover {}, phase margin {}, gain margin {}, bandwidth {}, peak |S| {:.2}\n",
-        args.input,
-        args.feedforward,
+        plant_input(args),
         args.output,
         fmt(fit.tf.num()),
         fmt(fit.tf.den()),

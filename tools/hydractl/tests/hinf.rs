@@ -86,3 +86,27 @@ fn a_torque_loop_designed_from_a_machines_recording_outtracks_its_ringing_pid() 
     let (pid, hinf) = (simulated_rms(&pid_config), simulated_rms(&hinf_config));
     assert!(hinf < pid, "H∞ {hinf} rad rms against the PID's {pid}");
 }
+
+/// Data without the friction compensation's column: the error names the
+/// column and the way out, and nothing is written.
+#[test]
+fn data_without_the_feedforward_column_is_refused_with_the_way_out() {
+    let dir = scratch_dir("cli-hinf-nofeed");
+    let csv = dir.join("run.csv");
+    std::fs::write(&csv, "t,u,torque\n0,0,0\n0.001,0.1,1\n").expect("write");
+    let out_config = dir.join("designed.toml");
+    let out = hydractl()
+        .args(["ident", "hinf", "--data"])
+        .arg(&csv)
+        .arg("--out")
+        .arg(&out_config)
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("friction_comp") && stderr.contains("--feedforward none") && stderr.contains("run.csv"),
+        "{stderr}"
+    );
+    assert!(!out_config.exists());
+}
