@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use hydractl_control::{HInfinityDesign, HInfinityParams};
 use hydractl_ident::loop_shaping::{design, LoopShapingDesign, PiWeight};
-use hydractl_ident::{Method, TfFit, TfOptions};
+use hydractl_ident::{DataError, Method, TfFit, TfOptions};
 use hydractl_lti::StateSpace;
 
 use crate::emit;
@@ -132,14 +132,19 @@ fn identify_plant(args: &IdentHinfArgs) -> Result<TfFit> {
     if subtract {
         columns.push(&args.feedforward);
     }
-    let data = load_dataset(&args.data, &columns).with_context(|| {
-        if subtract {
-            format!(
+    let data = load_dataset(&args.data, &columns).map_err(|e| {
+        // The feedforward's column missing: say what it is and the way out.
+        let missing_feedforward = e.chain().any(|cause| {
+            matches!(cause.downcast_ref::<DataError>(),
+                Some(DataError::MissingColumn { column, .. }) if *column == args.feedforward)
+        });
+        if subtract && missing_feedforward {
+            e.context(format!(
                 "the plant's input is `{}` minus `{}`, the command the controller does not make (`--feedforward none` when the data has none)",
                 args.input, args.feedforward
-            )
+            ))
         } else {
-            format!("the plant's input is `{}`", args.input)
+            e
         }
     })?;
     let mut input = data.column(&args.input)?.to_vec();
