@@ -13,7 +13,8 @@ pub const SIGNED_SET_POINT: f64 = 0.1;
 pub enum SpoolFault {
     /// Away from the set point for the hold time.
     Stuck { set_point: f64, actual: f64, hold_ms: u64 },
-    /// On the other side of neutral for the hold time.
+    /// On the other side of neutral, near the set point's mirror, for the
+    /// hold time.
     WrongSign { set_point: f64, actual: f64, hold_ms: u64 },
 }
 
@@ -72,8 +73,12 @@ impl SpoolWatch {
             self.wrong_since_ns = None;
             return None;
         };
-        let wrong =
-            set_point.abs() >= SIGNED_SET_POINT && actual * set_point < 0.0 && actual.abs() >= SIGNED_SET_POINT / 2.0;
+        // A wrong sign follows the set point's mirror; a spool that stays
+        // put while the set point crosses to the other side is stuck.
+        let wrong = set_point.abs() >= SIGNED_SET_POINT
+            && actual * set_point < 0.0
+            && actual.abs() >= SIGNED_SET_POINT / 2.0
+            && (actual + set_point).abs() <= self.tolerance;
         let away = (actual - set_point).abs() > self.tolerance;
         let hold_ns = self.hold_ns;
         let held = |since: &mut Option<u64>, now: bool| {
@@ -139,6 +144,19 @@ mod tests {
             wrong = wrong.or(watch.on_status(Some(0.3), -0.2, k * MS));
         }
         assert!(matches!(wrong, Some(SpoolFault::WrongSign { .. })), "{wrong:?}");
+    }
+
+    #[test]
+    fn a_spool_stuck_on_one_side_while_the_set_point_crosses_is_stuck() {
+        let mut watch = SpoolWatch::new(0.3, 500);
+        // Stuck at 15 %; the set point goes from 0 to −100 % in 300 ms and
+        // stays there: on the other side, but nowhere near the mirror.
+        let mut fault = None;
+        for k in 0..1500u64 {
+            let set_point = -(k as f64 / 300.0).min(1.0);
+            fault = fault.or(watch.on_status(Some(set_point), 0.15, k * MS));
+        }
+        assert!(matches!(fault, Some(SpoolFault::Stuck { .. })), "{fault:?}");
     }
 
     #[test]
