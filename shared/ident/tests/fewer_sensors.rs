@@ -12,7 +12,7 @@ use hydractl_ident::Dataset;
 use hydractl_sim::foreign::{foreign_plant, Hidden, Sensors};
 
 fn diagnosed(seed: u64, hidden: Option<Hidden>, sensors: Sensors, every: usize) -> Diagnosis {
-    let data = foreign_plant(seed, hidden, 60.0);
+    let data = foreign_plant(seed, hidden.as_slice(), 60.0);
     let description = data.description.clone();
     let dataset = Dataset::from_columns("foreign", data.record(sensors, every));
     let signals = Signals::from_dataset(&dataset).expect("valid signals");

@@ -22,7 +22,7 @@ fn signals(data: &ForeignData) -> Signals {
 }
 
 fn diagnosed(seed: u64, hidden: Option<Hidden>) -> Diagnosis {
-    let data = foreign_plant(seed, hidden, 60.0);
+    let data = foreign_plant(seed, hidden.as_slice(), 60.0);
     let diagnosis = diagnose(&signals(&data), None, FitOptions::default()).expect("diagnoses");
     common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
     diagnosis
@@ -90,7 +90,7 @@ fn the_hidden_effect_is_named_first_on_eight_of_nine() {
 fn another_valve_law_is_named_added_and_then_nothing_is_missing() {
     let hidden = Hidden::OrificeFlow;
     named_first(22, hidden).unwrap_or_else(|e| panic!("{e}"));
-    let data = foreign_plant(22, Some(hidden), 60.0);
+    let data = foreign_plant(22, &[hidden], 60.0);
     let signals = signals(&data);
     let options = FitOptions::default();
     let baseline = greybox::fit_baseline(&signals, &PlantParams::default(), options).expect("baseline fits");

@@ -50,13 +50,9 @@ fn true_model() -> Model {
     let validation = signals(&closed_loop(None, 101, 20.0));
     let spread = validation_spread(&config.plant, &Effects::none(), &validation, 0..validation.len());
     let mut model = Model::new(config.plant, Effects::none());
-    model.history.push(HistoryStep {
-        step: "baseline".to_owned(),
-        validation_nrmse: BTreeMap::new(),
-        plant: None,
-        effects: None,
-        validation_spread: spread,
-    });
+    let mut baseline = HistoryStep::of("baseline", &config.plant, &model.effects, BTreeMap::new());
+    baseline.validation_spread = spread;
+    model.history.push(baseline);
     model
 }
 

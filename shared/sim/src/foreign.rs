@@ -6,8 +6,8 @@
 //! with their own low-pass and a third to three times the default noise,
 //! supply-pressure ripple, friction that grows with the square of the
 //! speed besides the viscous part, a P position controller with its own
-//! gain and a reference of several sines. On top, one hidden effect or
-//! none, each written here in its own way.
+//! gain and a reference of several sines. On top, hidden effects (none,
+//! one, or a few of different kinds), each written here in its own way.
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -212,8 +212,45 @@ fn orifice_root(drop: f64) -> f64 {
     drop / ((drop.abs() + TRANSITION_PA) * 0.5 * Prior::SUPPLY).sqrt()
 }
 
-/// Simulates one foreign plant for `duration_s`, from `seed`.
-pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> ForeignData {
+/// The hidden effects' values, each kind at most once.
+#[derive(Default)]
+struct HiddenSet {
+    deadzone: Option<(f64, f64)>,
+    saturation: Option<f64>,
+    delay_s: Option<f64>,
+    asymmetric_gain: Option<f64>,
+    coulomb: Option<(f64, f64)>,
+    gravity: Option<(f64, f64)>,
+    backlash: Option<f64>,
+    quantization: Option<f64>,
+    orifice_flow: bool,
+}
+
+impl HiddenSet {
+    /// The effects of `hidden`; of a kind given twice, the last.
+    fn of(hidden: &[Hidden]) -> Self {
+        let mut set = Self::default();
+        for h in hidden {
+            match *h {
+                Hidden::Deadzone { width, offset } => set.deadzone = Some((width, offset)),
+                Hidden::Saturation { limit } => set.saturation = Some(limit),
+                Hidden::TimeDelay { seconds } => set.delay_s = Some(seconds),
+                Hidden::AsymmetricGain { ratio } => set.asymmetric_gain = Some(ratio),
+                Hidden::CoulombFriction { sliding, breakaway } => set.coulomb = Some((sliding, breakaway)),
+                Hidden::GravityLoad { amplitude, offset } => set.gravity = Some((amplitude, offset)),
+                Hidden::Backlash { width } => set.backlash = Some(width),
+                Hidden::Quantization { step } => set.quantization = Some(step),
+                Hidden::OrificeFlow => set.orifice_flow = true,
+            }
+        }
+        set
+    }
+}
+
+/// Simulates one foreign plant for `duration_s`, from `seed`, with the
+/// `hidden` effects (none, one, or several of different kinds). The plant
+/// drawn depends on the seed alone.
+pub fn foreign_plant(seed: u64, hidden: &[Hidden], duration_s: f64) -> ForeignData {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut scatter = |nominal: f64| nominal * rng.random_range(0.6..1.4);
     let bulk = scatter(Prior::BULK);
@@ -239,14 +276,13 @@ pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> Fore
     ];
     let noise =
         Normal::new(0.0, Prior::NOISE_PA * noise_scale).unwrap_or_else(|_| Normal::new(0.0, 1.0).expect("unit normal"));
-    let step = match hidden {
-        Some(Hidden::Quantization { step }) => step,
-        _ => std::f64::consts::TAU / Prior::COUNTS_PER_TURN,
-    };
-    let delay_samples = match hidden {
-        Some(Hidden::TimeDelay { seconds }) => (seconds / SAMPLE_S).round() as usize,
-        _ => 0,
-    };
+    let hidden = HiddenSet::of(hidden);
+    let step = hidden
+        .quantization
+        .unwrap_or(std::f64::consts::TAU / Prior::COUNTS_PER_TURN);
+    let delay_samples = hidden
+        .delay_s
+        .map_or(0, |seconds| (seconds / SAMPLE_S).round() as usize);
     let samples = (duration_s / SAMPLE_S).round() as usize;
     let h = SAMPLE_S / SUBSTEPS as f64;
     let (mut spool, mut spool_rate) = (0.0f64, 0.0f64);
@@ -299,19 +335,19 @@ pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> Fore
             let accel = valve_wn * valve_wn * (command - spool) - 2.0 * valve_zeta * valve_wn * spool_rate;
             spool_rate += h * accel;
             spool += h * spool_rate;
-            if let Some(Hidden::Saturation { limit }) = hidden {
+            if let Some(limit) = hidden.saturation {
                 if spool.abs() > limit {
                     spool = spool.signum() * limit;
                     spool_rate = 0.0;
                 }
             }
             let mut opening = spool;
-            if let Some(Hidden::Deadzone { width, offset }) = hidden {
+            if let Some((width, offset)) = hidden.deadzone {
                 let from_centre = opening - offset;
                 opening = from_centre.signum() * (from_centre.abs() - width).max(0.0);
             }
             let mut k_q = flow_gain;
-            if let (Some(Hidden::AsymmetricGain { ratio }), true) = (hidden, opening < 0.0) {
+            if let (Some(ratio), true) = (hidden.asymmetric_gain, opening < 0.0) {
                 k_q *= ratio;
             }
             // Each metering edge's pressure drop, for the orifice law: supply
@@ -322,12 +358,13 @@ pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> Fore
             } else {
                 (p_a, supply - p_b)
             };
-            let (metered_a, metered_b) = match hidden {
-                Some(Hidden::OrificeFlow) => (
+            let (metered_a, metered_b) = if hidden.orifice_flow {
+                (
                     2.0 * k_q * opening * orifice_root(drop_a),
                     2.0 * k_q * opening * orifice_root(drop_b),
-                ),
-                _ => (2.0 * k_q * opening, 2.0 * k_q * opening),
+                )
+            } else {
+                (2.0 * k_q * opening, 2.0 * k_q * opening)
             };
             let q_a = metered_a - 2.0 * flow_pressure * (p_a - 0.5 * supply);
             let q_b = metered_b + 2.0 * flow_pressure * (p_b - 0.5 * supply);
@@ -338,26 +375,25 @@ pub fn foreign_plant(seed: u64, hidden: Option<Hidden>, duration_s: f64) -> Fore
             p_a = p_a.clamp(0.0, supply);
             p_b = p_b.clamp(0.0, supply);
             let mut torque = Prior::DISPLACEMENT * (p_a - p_b) - viscous * speed - quadratic * speed * speed.abs();
-            match hidden {
-                Some(Hidden::GravityLoad { amplitude, offset }) => torque -= amplitude * (angle - offset).sin(),
-                Some(Hidden::CoulombFriction { sliding, breakaway }) => {
-                    // Held while the drive stays below breakaway; sliding
-                    // friction once it moves.
-                    if speed.abs() < 1e-3 && torque.abs() <= breakaway {
-                        speed = 0.0;
-                        torque = 0.0;
-                    } else {
-                        let direction = if speed != 0.0 { speed.signum() } else { torque.signum() };
-                        torque -= sliding * direction;
-                    }
+            if let Some((amplitude, offset)) = hidden.gravity {
+                torque -= amplitude * (angle - offset).sin();
+            }
+            if let Some((sliding, breakaway)) = hidden.coulomb {
+                // Held while the drive stays below breakaway; sliding
+                // friction once it moves.
+                if speed.abs() < 1e-3 && torque.abs() <= breakaway {
+                    speed = 0.0;
+                    torque = 0.0;
+                } else {
+                    let direction = if speed != 0.0 { speed.signum() } else { torque.signum() };
+                    torque -= sliding * direction;
                 }
-                _ => {}
             }
             speed += h * torque / inertia;
             angle += h * speed;
-            load_angle = match hidden {
-                Some(Hidden::Backlash { width }) => load_angle.clamp(angle - 0.5 * width, angle + 0.5 * width),
-                _ => angle,
+            load_angle = match hidden.backlash {
+                Some(width) => load_angle.clamp(angle - 0.5 * width, angle + 0.5 * width),
+                None => angle,
             };
             // The transducers' own first-order lag.
             let blend = h / (lag_s + h);
@@ -375,7 +411,7 @@ mod tests {
     #[test]
     fn a_foreign_plant_tracks_its_reference_and_stays_within_its_pressures() {
         for seed in 0..3 {
-            let data = foreign_plant(seed, None, 20.0);
+            let data = foreign_plant(seed, &[], 20.0);
             assert_eq!(data.t.len(), 20_000);
             let moved = data.theta.iter().fold(0.0f64, |m, t| m.max(t.abs()));
             assert!(moved > 0.3 && moved < 2.0, "seed {seed}: {moved} rad");
@@ -385,9 +421,9 @@ mod tests {
 
     #[test]
     fn each_hidden_effect_leaves_its_mark() {
-        let clean = foreign_plant(7, None, 20.0);
+        let clean = foreign_plant(7, &[], 20.0);
         for hidden in Hidden::all() {
-            let data = foreign_plant(7, Some(hidden), 20.0);
+            let data = foreign_plant(7, &[hidden], 20.0);
             let differs = data.theta.iter().zip(&clean.theta).any(|(a, b)| (a - b).abs() > 1e-3);
             assert!(differs, "{}", hidden.name());
         }

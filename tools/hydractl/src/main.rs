@@ -189,7 +189,8 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
     },
-    /// Wall time of `model diagnose` over the whole catalog, by data length.
+    /// Wall time of `model diagnose` over the whole catalog, by data length,
+    /// and of `model learn` on 60 s of a foreign plant with two effects.
     Diagnose {
         /// Data lengths to time, s of 1 kHz data.
         #[arg(long, value_delimiter = ',', default_values_t = [15.0, 30.0, 60.0])]
@@ -200,7 +201,8 @@ enum BenchCommand {
     /// `model diagnose` on plants simulated apart from the model (parameters
     /// ±40 % from the prior, other noise, a transducer lag, supply ripple,
     /// quadratic friction, their own controller), with one hidden effect
-    /// or none: how often the hidden effect is named, and false alarms.
+    /// or none: how often the hidden effect is named, and false alarms;
+    /// with several hidden, `model learn`: how often it adds every one.
     Foreign {
         /// Plants per case.
         #[arg(long, default_value_t = 20)]
@@ -210,12 +212,13 @@ enum BenchCommand {
         duration: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Cases to run: `none` and effect names [default: all].
+        /// Cases to run: `none`, effect names, effects hidden together as
+        /// `A+B`, and `pairs` for every pair [default: none and each effect alone].
         #[arg(long, value_delimiter = ',')]
         effects: Vec<String>,
-        /// Print JSON: {"duration_s", "seed", "cases": [{"hidden", "truth", "plants", "named_first",
-        /// "within_25_percent", "any_significant", "runs": [{"seed", "plant", "first", "first_significant",
-        /// "significant", "fitted", "seconds"}]}]}.
+        /// Print JSON: {"duration_s", "seed", "cases": [{"hidden", "truth" (per effect), "plants", "named_first",
+        /// "within_25_percent", "goal" (several hidden), "any_significant", "runs": [{"seed", "plant", "first",
+        /// "first_significant", "significant", "fitted" (per effect), "stop" (several hidden), "seconds"}]}]}.
         #[arg(long)]
         json: bool,
         /// Also write each plant's data to DIR/<case>-<seed>.csv

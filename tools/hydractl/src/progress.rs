@@ -40,6 +40,16 @@ impl Progress {
     }
 }
 
+impl Progress {
+    /// Prints `line` on stdout, the bar set aside while it is written.
+    pub fn println(&self, line: &str) {
+        self.bar.suspend(|| {
+            // stdout closed by the reader: the result still goes to the file.
+            let _ = crate::emit(&format!("{line}\n"));
+        });
+    }
+}
+
 impl greybox::Progress for Progress {
     fn fitted(&self, what: &str, done: usize, total: usize) {
         let message = if done == 0 {

@@ -233,12 +233,31 @@ const MODEL: RGBColor = RGBColor(220, 90, 20);
 const SECOND: RGBColor = RGBColor(30, 110, 200);
 
 pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) -> Result<()> {
+    write_with(signals, model, None, options, out)?;
+    crate::emit(&format!("report written to {}\n", out.display()))
+}
+
+/// [`write`], with `model`'s diagnosis on `signals` where the caller has
+/// it already (`model learn`'s last).
+pub fn write_with(
+    signals: &Signals,
+    model: &Model,
+    diagnosis: Option<&greybox::Diagnosis>,
+    options: FitOptions,
+    out: &Path,
+) -> Result<()> {
     let effects = model.effects()?;
-    let progress = crate::progress::Progress::new("model report", false);
-    progress.step("comparing", 0, 1);
     let comparison = greybox::compare(&model.plant, &effects, signals, options.estimation_fraction);
-    let diagnosis = greybox::diagnose_with(signals, Some(model), options, &progress)?;
-    drop(progress);
+    let diagnosed;
+    let diagnosis = match diagnosis {
+        Some(d) => d,
+        None => {
+            let progress = crate::progress::Progress::new("model report", false);
+            progress.step("diagnosing", 0, 1);
+            diagnosed = greybox::diagnose_with(signals, Some(model), options, &progress)?;
+            &diagnosed
+        }
+    };
     let p = &comparison.prediction;
     let v = comparison.validation.clone();
     let step = stride(&v);
@@ -552,8 +571,7 @@ pub fn write(signals: &Signals, model: &Model, options: FitOptions, out: &Path) 
     html += "</table><h2>Plots</h2>";
     push_figures(&mut html, &figures);
     html += "</body></html>\n";
-    std::fs::write(out, html).with_context(|| format!("writing the report to {}", out.display()))?;
-    crate::emit(&format!("report written to {}\n", out.display()))
+    std::fs::write(out, html).with_context(|| format!("writing the report to {}", out.display()))
 }
 
 fn push_figures(html: &mut String, figures: &[(String, String)]) {

@@ -26,6 +26,7 @@ mod compare;
 mod diagnose;
 mod fit;
 mod hydraulic;
+mod learn;
 mod mechanical;
 mod shadow;
 mod signals;
@@ -36,6 +37,7 @@ mod tests;
 pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore, REGIMES};
 pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
+pub use learn::{learn, LearnProgress, LearnStep, Learned, Stop};
 pub use shadow::{
     moved_effect, segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow,
     CALIBRATION_SEGMENTS,
@@ -167,6 +169,14 @@ pub struct HistoryStep {
     /// shadow's drift test (absent in older files).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub validation_spread: BTreeMap<String, SegmentSpread>,
+    /// The segment test that decided to add it (`model learn`), its
+    /// statistic and the threshold it passed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub test: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub statistic: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<f64>,
 }
 
 impl HistoryStep {
@@ -183,6 +193,9 @@ impl HistoryStep {
             plant: Some(*plant),
             effects: Some(effects.clone()),
             validation_spread: BTreeMap::new(),
+            test: None,
+            statistic: None,
+            threshold: None,
         }
     }
 

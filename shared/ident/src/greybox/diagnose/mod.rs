@@ -29,10 +29,12 @@ mod plausibility;
 mod stats;
 #[cfg(test)]
 mod tests;
+mod ties;
 mod verdict;
 
 use plausibility::*;
 use stats::*;
+use ties::*;
 use verdict::*;
 
 /// The family-wise false-alarm rate of a diagnosis: the chance that an
@@ -104,6 +106,13 @@ pub struct Candidate {
     pub effective_segments: f64,
     /// The fitted parameters' standard deviations and inseparable pairs.
     pub uncertainty: Uncertainty,
+    /// For the first: the other significant effects the record cannot
+    /// tell from it (the first does not beat them by the share that counts).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub indistinguishable_from: Vec<String>,
+    /// The part it was fitted and judged on.
+    #[serde(skip)]
+    part: Part,
     /// The encoder's step, where every reading of the angle lies on its
     /// lattice and the candidate is significant: shown by the readings
     /// themselves, it ranks before what a test makes likely.
@@ -276,6 +285,24 @@ pub fn diagnose_with(
             super::predict(&refit.plant, &refit.effects()?, signals, validation.clone())
         };
         let after = super::fit::nrmse_by_output(signals, &after_prediction, validation.clone());
+        // The candidate's refit moves the part's other parameters too, from
+        // starts of its own: what it gains may be a better fit of them, not
+        // the effect (a gravity load of 0.007 N·m took 65 % of the angle's
+        // error beside a Coulomb friction whose refit it improved). The
+        // effect itself must remove the share that counts from its refit.
+        let refit_alone = if found_nothing {
+            None
+        } else {
+            refit_without_effect(
+                signals,
+                &refit,
+                *kind,
+                part,
+                &after_prediction,
+                validation.clone(),
+                tried,
+            )?
+        };
         if found_nothing {
             if let Some(last) = refit.history.last_mut() {
                 last.validation_nrmse = before.clone();
@@ -303,7 +330,7 @@ pub fn diagnose_with(
             .flatten();
         // The readings themselves can show a coarse encoder where a model
         // without pressures is too far off to gain from its staircase.
-        let shown = (!found_nothing && test.passed() && nrmse_after < nrmse_before)
+        let shown = (!found_nothing && test.passed() && nrmse_after < nrmse_before && refit_alone.is_none())
             || (on_lattice.is_some() && nrmse_after <= nrmse_before);
         // A fit that is not the effect it names, or finer than the data
         // resolves, is turned down whatever the test says.
@@ -326,6 +353,7 @@ pub fn diagnose_with(
                 resolution,
                 not_itself,
                 on_lattice,
+                refit_alone,
             },
         );
         let prefix = format!("{}.", kind.name());
@@ -354,6 +382,8 @@ pub fn diagnose_with(
                 segments: test.segments,
                 effective_segments: test.effective,
                 uncertainty,
+                indistinguishable_from: Vec::new(),
+                part,
                 read_off_step: on_lattice.filter(|_| significant).map(|(_, step)| step),
                 stands_in,
             },
@@ -406,6 +436,10 @@ pub fn diagnose_with(
             .then(shown_by_readings(b).cmp(&shown_by_readings(a)))
             .then(b.score.total_cmp(&a.score))
     });
+    let tied = indistinguishable(&candidates, &fitted, signals, validation.clone(), tried)?;
+    if let Some(first) = candidates.first_mut() {
+        first.indistinguishable_from = tied;
+    }
     let verdict = match candidates.first() {
         Some(
             best @ Candidate {
@@ -418,6 +452,7 @@ pub fn diagnose_with(
             best.output,
             before_after(best.validation_nrmse_before, best.validation_nrmse_after),
         ),
+        Some(best) if best.significant && !best.indistinguishable_from.is_empty() => tied_verdict(best, &candidates),
         Some(best) if best.significant => {
             format!(
             "add `{}`: it removes {:.0}% of the {} error ({}; {} = {:.1} over {} segments, threshold {:.1})",

@@ -2,7 +2,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use super::{
     before_after, both_exceed, error_share, joint_level, least_fall, nearest, no_effect_verdict, owens_t, paired_t,
-    readings_on_lattice, reported, signed_rank, Candidate, PairedTest, SegmentTest,
+    readings_on_lattice, reported, signed_rank, Candidate, PairedTest, Part, SegmentTest,
 };
 use statrs::distribution::{ContinuousCDF, Normal};
 
@@ -209,6 +209,8 @@ fn turned_down(effect: &str, statistic: f64, before: f64, after: f64) -> Candida
         segments: 36,
         effective_segments: 36.0,
         uncertainty: Default::default(),
+        indistinguishable_from: Vec::new(),
+        part: Part::Hydraulic,
         read_off_step: None,
         stands_in: None,
     }

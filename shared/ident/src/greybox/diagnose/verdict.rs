@@ -16,6 +16,9 @@ pub(super) struct Judgement {
     pub(super) not_itself: Option<String>,
     /// How many readings lie on the encoder's lattice, and its step, if all do.
     pub(super) on_lattice: Option<(usize, f64)>,
+    /// The refit's validation NRMSE without the effect, when the effect
+    /// itself removes too little of it: the gain was the refit's.
+    pub(super) refit_alone: Option<f64>,
 }
 
 /// Which test over the validation segments decided.
@@ -32,6 +35,40 @@ pub(super) enum SegmentTest {
     /// the segments that hold most of the error gain and the quiet ones,
     /// noise alone, cannot (a delay, seen where the command steps).
     ErrorShare,
+}
+
+/// The verdict when the first effect is significant but the record cannot
+/// tell it from others: every one named, each with what it does, and the
+/// first added only as the data's slight preference.
+pub(super) fn tied_verdict(best: &Candidate, candidates: &[Candidate]) -> String {
+    let others: Vec<String> = best
+        .indistinguishable_from
+        .iter()
+        .filter_map(|name| candidates.iter().find(|c| &c.effect == name))
+        .map(|c| {
+            format!(
+                "`{}` ({})",
+                c.effect,
+                before_after(c.validation_nrmse_before, c.validation_nrmse_after)
+            )
+        })
+        .collect();
+    format!(
+        "add `{}` or {}: the record cannot tell them apart (each removes the {} error alike: `{}` {}, {} = {:.1} over {} segments, \
+         threshold {:.1}; none beats another by the {:.0}% that counts); `{}` removes slightly more, and a record that tells them \
+         apart decides (other signals, other motions)",
+        best.effect,
+        others.join(" or "),
+        best.output,
+        best.effect,
+        before_after(best.validation_nrmse_before, best.validation_nrmse_after),
+        best.statistic_symbol(),
+        best.statistic,
+        best.segments,
+        best.threshold,
+        100.0 * MIN_ERROR_REMOVED,
+        best.effect
+    )
 }
 
 /// The verdict when no effect is significant: whether a fit that is not
@@ -122,6 +159,7 @@ pub(super) fn evidence(
         resolution,
         not_itself,
         on_lattice,
+        refit_alone,
     } = judgement;
     let get = |key: &str| params.get(key).copied().unwrap_or(f64::NAN);
     let went = before_after(before, after);
@@ -243,6 +281,11 @@ pub(super) fn evidence(
         format!("not significant: fitted, it ends at the value where it does nothing, so it is the baseline ({judged})")
     } else if found_nothing {
         format!("not significant: fitted as hard as the baseline, it lowers the estimation loss no further ({judged})")
+    } else if let Some(alone) = refit_alone.filter(|_| test.passed() && after < before) {
+        format!(
+            "not significant: its refit takes the {output} validation NRMSE {went}, but the same refit without it does nearly as well \
+             ({alone:.4}): the gain is a better fit of the model's other parameters, not the effect ({judged})"
+        )
     } else if let Some(why) = not_itself.filter(|_| test.passed() && after < before) {
         format!(
             "not named: fitted, it takes the {output} validation NRMSE {went}, but {why}: \

@@ -9,6 +9,9 @@ use serde::Serialize;
 
 use crate::Config;
 
+mod plausible;
+pub use plausible::{implausible, Implausible};
+
 /// One key of the config changed.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Change {
