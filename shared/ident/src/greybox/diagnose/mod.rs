@@ -466,7 +466,7 @@ pub fn diagnose_with(
             best.threshold
         )
         }
-        _ => no_effect_verdict(&candidates, &plausible_effects),
+        _ => no_effect_verdict(&candidates, &plausible_effects, &before),
     };
     Ok(Diagnosis {
         parts,

@@ -251,7 +251,7 @@ fn a_stand_in_that_passes_the_test_says_something_outside_the_catalog_is_missing
     stand_in.stands_in = Some("its coupling is damped beyond critical (ζ = 23.83): nothing rings".to_owned());
     let near = turned_down("time_delay", 2.7, 0.0266, 0.0232);
     let plausible: BTreeSet<String> = ["time_delay".to_owned()].into();
-    let both = no_effect_verdict(&[stand_in.clone(), near.clone()], &plausible);
+    let both = no_effect_verdict(&[stand_in.clone(), near.clone()], &plausible, &BTreeMap::new());
     assert!(
         both.starts_with("no effect of the catalog helps significantly, yet `load_flexibility`"),
         "{both}"
@@ -260,15 +260,43 @@ fn a_stand_in_that_passes_the_test_says_something_outside_the_catalog_is_missing
         both.contains("something the catalog lacks is missing") && both.contains("`time_delay`"),
         "{both}"
     );
-    let alone = no_effect_verdict(&[stand_in], &BTreeSet::new());
+    let alone = no_effect_verdict(&[stand_in], &BTreeSet::new(), &BTreeMap::new());
     assert!(alone.contains("ζ = 23.83") && !alone.contains("nearest"), "{alone}");
-    assert!(
-        no_effect_verdict(&[near], &plausible).starts_with("no effect of the catalog helps significantly; the nearest")
+    assert!(no_effect_verdict(&[near], &plausible, &BTreeMap::new())
+        .starts_with("no effect of the catalog helps significantly; the nearest"));
+    let fitted_well: BTreeMap<String, f64> = [("p_a".to_owned(), 0.0266), ("theta".to_owned(), 0.002)].into();
+    let nothing = no_effect_verdict(
+        &[turned_down("deadzone", 0.0, 0.0266, 0.0266)],
+        &plausible,
+        &fitted_well,
     );
-    let nothing = no_effect_verdict(&[turned_down("deadzone", 0.0, 0.0266, 0.0266)], &plausible);
     assert!(
         nothing.ends_with("the model explains this data as well as it can"),
         "{nothing}"
+    );
+}
+
+/// A saturation well inside the command's range was turned down while
+/// the baseline fitted the pressures at NRMSE 0.857: the verdict never
+/// says the model explains such data; it says what is left, and how much.
+#[test]
+fn a_baseline_that_fits_badly_is_never_said_to_explain_the_data() {
+    let baseline: BTreeMap<String, f64> = [
+        ("p_a".to_owned(), 0.857),
+        ("p_b".to_owned(), 0.85),
+        ("pressures".to_owned(), 0.853),
+        ("theta".to_owned(), 0.004),
+    ]
+    .into();
+    let verdict = no_effect_verdict(
+        &[turned_down("saturation", 0.0, 0.857, 0.857)],
+        &BTreeSet::new(),
+        &baseline,
+    );
+    assert!(!verdict.contains("as well as it can"), "{verdict}");
+    assert!(
+        verdict.contains("p_a (NRMSE 0.857, a fit of 14 %) and p_b") && !verdict.contains("theta ("),
+        "{verdict}"
     );
 }
 
