@@ -3,7 +3,7 @@ use std::path::Path;
 
 use hydractl_plant::PA_PER_BAR;
 use hydractl_samples::{
-    service, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
+    fault, service, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
 };
 use serde::Serialize;
 
@@ -90,8 +90,9 @@ pub struct Export {
     /// the stage skipped that reading: the previous one is held, as the
     /// valve holds its current.
     pub held: usize,
-    /// Readings after the loop's last command (the stack stopping while
-    /// the plant still read): left out, they answer nothing.
+    /// Readings after the loop last drove the valve (the stack stopping
+    /// while the plant still read, or the valve held neutral to the end by
+    /// a latched fault): left out, they answer nothing.
     pub after_loop: usize,
     pub read: ReadOutcome,
 }
@@ -118,7 +119,12 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
             }
             service::VALVE => {
                 if let Some(v) = decode::<ValveSample>(m) {
-                    valve.insert(v.sensor_seq, v);
+                    // A stopping valve's neutral carries the newest reading
+                    // it knew: the command that answered that reading came
+                    // first, and is the one the machine got.
+                    if !valve.get(&v.sensor_seq).is_some_and(drove) {
+                        valve.insert(v.sensor_seq, v);
+                    }
                 }
             }
             service::POSITION => {
@@ -168,14 +174,20 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
             path: path.to_path_buf(),
             topic: service::VALVE.to_owned(),
         })?;
-    // The loop's last answered reading: after it the stack was stopping
-    // (its stages gone, the plant, a machine's bus, still reading).
+    // The last reading the loop drove the machine on: after it the stack
+    // was stopping (its stages gone, the plant, a machine's bus, still
+    // reading) or the valve held neutral to the end, a fault latched or the
+    // process stopping: the machine held still answers nothing, and a
+    // validation part of it has no spread to judge an error by.
     let end = plant
         .keys()
         .copied()
         .rev()
-        .find(|seq| valve.contains_key(seq) && position.contains_key(seq))
-        .unwrap_or(start);
+        .find(|seq| valve.get(seq).is_some_and(drove) && position.contains_key(seq))
+        .filter(|end| *end > start)
+        .ok_or_else(|| RecordingError::NeverDriven {
+            path: path.to_path_buf(),
+        })?;
     let after_loop = plant.range(end + 1..).count();
     let mut rows = Vec::with_capacity(plant.len());
     let mut held = 0;
@@ -232,6 +244,12 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
         after_loop,
         read,
     })
+}
+
+/// Whether the valve drove the machine with this sample's command: not
+/// held neutral by a latched fault, nor starting or stopping.
+fn drove(v: &ValveSample) -> bool {
+    v.faults & (fault::DEVICE | fault::OFF) == 0
 }
 
 /// The loop's period: the median time between consecutive readings,

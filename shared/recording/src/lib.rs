@@ -74,6 +74,11 @@ pub enum RecordingError {
     MissingChannel { path: PathBuf, topic: String, have: String },
     #[error("{path}: no sample of `{topic}` matches a sensor reading; nothing to export")]
     NothingToExport { path: PathBuf, topic: String },
+    #[error(
+        "{path}: the valve never drove the machine in this recording (held neutral throughout: a fault latched before \
+         the run, or the stack stopping); nothing to fit"
+    )]
+    NeverDriven { path: PathBuf },
     #[error("{path}: a sample of {got} bytes was written to channel `{topic}`, whose `{schema}` has {want}")]
     WrongPayload {
         path: PathBuf,

@@ -297,7 +297,7 @@ fn exported(path: &Path) -> Result<hydractl_recording::Export> {
     }
     if export.after_loop > 0 {
         tracing::info!(
-            "{}: the last {} reading(s) came after the loop's last command (the stack stopping) and are left out",
+            "{}: the last {} reading(s) came after the loop last drove the valve (the stack stopping, or the valve held neutral to the end by a fault) and are left out",
             path.display(),
             export.after_loop
         );
