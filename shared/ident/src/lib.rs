@@ -14,11 +14,13 @@
 //! file keeps): its hydraulic and mechanical parts driven by measured
 //! coupling signals and compared by multiple shooting, the fit
 //! (Levenberg–Marquardt, `lm`, Huber loss), `compare` (fit per output,
-//! residual by part and regime, `resid`'s tests) and `diagnose` (every
-//! catalog effect tried, refitted and ranked; the parts fitted follow the
-//! sensors the record has: hydraulic + mechanical, the whole command → angle
-//! without pressures, mechanical alone with a measured torque; `Progress`
-//! reports each fit as it finishes).
+//! residual by part and regime, `resid`'s tests), `diagnose` (every
+//! catalog effect tried, refitted and ranked, effects the record cannot
+//! tell apart named together; the parts fitted follow the sensors the
+//! record has: hydraulic + mechanical, the whole command → angle without
+//! pressures, mechanical alone with a measured torque; `Progress` reports
+//! each fit as it finishes) and `learn` (diagnose and add until nothing
+//! more helps).
 
 pub mod data;
 pub mod friction_map;
