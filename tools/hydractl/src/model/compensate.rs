@@ -67,6 +67,23 @@ struct Proof {
     refused: Vec<String>,
 }
 
+impl Proof {
+    /// Untuned → tuned on the model, in a line (the file's head and the
+    /// command's output).
+    fn figures(&self) -> String {
+        format!(
+            "on the model ({} s): tracking rms {:.4} → {:.4} rad, max {:.4} → {:.4} rad, torque power above 10 rad/s {:.0} → {:.0} (N·m)²",
+            self.duration_s,
+            self.untuned.rms_rad,
+            self.tuned.rms_rad,
+            self.untuned.max_rad,
+            self.tuned.max_rad,
+            self.untuned.torque_power_above_10_rad_s,
+            self.tuned.torque_power_above_10_rad_s
+        )
+    }
+}
+
 /// `config`'s controllers on the model's plant and effects.
 fn on_model(config: &Config, model: &Model) -> Result<Tracking> {
     let mut on = config.clone();
@@ -133,13 +150,7 @@ pub fn compensate(args: CompensateArgs) -> Result<()> {
          # use what the model learned; the plant is the base config's.\n",
         args.model.display()
     );
-    text += &format!(
-        "# On the model, {PROOF_S} s: tracking rms {:.4} rad (untuned {:.4}), torque power above 10 rad/s {:.0} (N·m)² (untuned {:.0}).\n",
-        proof.tuned.rms_rad,
-        proof.untuned.rms_rad,
-        proof.tuned.torque_power_above_10_rad_s,
-        proof.untuned.torque_power_above_10_rad_s
-    );
+    text += &format!("# {}\n", proof.figures());
     for reason in &proof.refused {
         text += &format!("# WRITTEN WITH --force although {reason}\n");
     }
@@ -177,15 +188,7 @@ pub fn compensate(args: CompensateArgs) -> Result<()> {
     for n in &tuned.not_compensated {
         out += &format!("not compensated: {}: {}\n", n.effect, n.reason);
     }
-    out += &format!(
-        "on the model ({PROOF_S} s): tracking rms {:.4} → {:.4} rad, max {:.4} → {:.4} rad, torque power above 10 rad/s {:.0} → {:.0} (N·m)²\n",
-        proof.untuned.rms_rad,
-        proof.tuned.rms_rad,
-        proof.untuned.max_rad,
-        proof.tuned.max_rad,
-        proof.untuned.torque_power_above_10_rad_s,
-        proof.tuned.torque_power_above_10_rad_s
-    );
+    out += &format!("{}\n", proof.figures());
     for reason in &proof.refused {
         out += &format!("written with --force although {reason}\n");
     }
