@@ -103,6 +103,22 @@ pub struct SimulationRun {
     pub summary: Summary,
 }
 
+impl SimulationRun {
+    /// The run as the model tools read a measured record: `t`, the valve
+    /// command `u`, the chamber pressures `p_a`, `p_b` (bar, as the sensors
+    /// read them) and the measured angle `theta`.
+    pub fn model_columns(&self) -> Vec<(&'static str, Vec<f64>)> {
+        let column = |f: fn(&Record) -> f64| self.records.iter().map(f).collect::<Vec<f64>>();
+        vec![
+            ("t", column(|r| r.t)),
+            ("u", column(|r| r.u)),
+            ("p_a", column(|r| r.p_a)),
+            ("p_b", column(|r| r.p_b)),
+            ("theta", column(|r| r.theta)),
+        ]
+    }
+}
+
 /// The plant of a config with extra effects switched on (replacing any of
 /// the same kind the config has).
 pub fn build_plant(config: &Config, extra_effects: &[Effect]) -> Result<(Plant, SensorModel), SimError> {

@@ -103,17 +103,7 @@ pub fn diagnose_record(seconds: f64) -> Signals {
     let config = default_config();
     let hidden = Effect::parse("deadzone").expect("a catalog effect");
     let run = simulate(&config, &[hidden], seconds).expect("the simulation runs");
-    let column = |f: fn(&hydractl_sim::Record) -> f64| run.records.iter().map(f).collect::<Vec<f64>>();
-    let data = Dataset::from_columns(
-        "simulated",
-        vec![
-            ("t", column(|r| r.t)),
-            ("u", column(|r| r.u)),
-            ("p_a", column(|r| r.p_a)),
-            ("p_b", column(|r| r.p_b)),
-            ("theta", column(|r| r.theta)),
-        ],
-    );
+    let data = Dataset::from_columns("simulated", run.model_columns());
     Signals::from_dataset(&data).expect("the record's columns")
 }
 

@@ -9,22 +9,6 @@ use hydractl_plant::EffectKind;
 
 use crate::emit;
 
-/// A simulated run as the model tools see a CSV of it.
-fn signals_from_records(records: &[hydractl_sim::Record]) -> Result<Signals> {
-    let column = |f: fn(&hydractl_sim::Record) -> f64| records.iter().map(f).collect::<Vec<f64>>();
-    let data = Dataset::from_columns(
-        "simulated",
-        vec![
-            ("t", column(|r| r.t)),
-            ("u", column(|r| r.u)),
-            ("p_a", column(|r| r.p_a)),
-            ("p_b", column(|r| r.p_b)),
-            ("theta", column(|r| r.theta)),
-        ],
-    );
-    Ok(Signals::from_dataset(&data)?)
-}
-
 /// `hydractl bench diagnose`: wall time of `diagnose` over the whole catalog
 /// on closed-loop data with a hidden dead-zone, for several data lengths,
 /// and of `learn` on a foreign plant with two effects.
@@ -39,7 +23,7 @@ pub fn bench_diagnose(durations: &[f64], repeat: usize) -> Result<()> {
     );
     for &duration in durations {
         let run = hydractl_sim::simulate(&config, &[hidden], duration)?;
-        let signals = signals_from_records(&run.records)?;
+        let signals = Signals::from_dataset(&Dataset::from_columns("simulated", run.model_columns()))?;
         let mut times = Vec::new();
         let mut first = String::new();
         for _ in 0..repeat.max(1) {
