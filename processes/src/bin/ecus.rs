@@ -18,6 +18,7 @@ use hydractl_can::canopen::is_sync;
 use hydractl_can::ecu::{Outbox, SensorEcu, ValveEcu};
 use hydractl_can::profile::Transport;
 use hydractl_can::Frame;
+use hydractl_plant::Drift;
 use hydractl_sim::build_plant;
 
 /// The ECUs' own clock: heartbeats, the valve's RPDO timeout, and the
@@ -47,6 +48,11 @@ fn main() -> Result<()> {
         .machine_plant()?
         .unwrap_or_else(|| started.config.clone());
     let (mut plant, mut sensors) = build_plant(&physics, &[]).context("ecus: the rotator")?;
+    // A wearing machine: its effect changes as the machine stand-in's does.
+    let drift = match started.config.machine.as_ref().and_then(|m| m.drift.as_ref()) {
+        Some(spec) => Some(Drift::new(plant.effects(), spec).context("ecus: [machine.drift]")?),
+        None => None,
+    };
     let step_ns = (physics.timing.integration_step() * 1e9).round().max(1.0) as u64;
     let silent = started.config.machine.as_ref().and_then(|m| m.silent_node);
     let stuck_after_ns = started
@@ -101,7 +107,7 @@ fn main() -> Result<()> {
                 while let Some(received) = port.receive()? {
                     let now_ns = clock::now_ns();
                     let command = spool_command(&valve, now_ns);
-                    integrate_to(&mut plant, &mut integrated_ns, step_ns, now_ns, command);
+                    integrate_to(&mut plant, drift.as_ref(), &mut integrated_ns, step_ns, now_ns, command);
                     let frame: Frame = received.frame;
                     if is_sync(&frame, profile.sync_cob_id) {
                         let state = plant.state();
@@ -124,7 +130,7 @@ fn main() -> Result<()> {
                 if now >= next_tick.get() {
                     let now_ns = clock::now_ns();
                     let command = spool_command(&valve, now_ns);
-                    integrate_to(&mut plant, &mut integrated_ns, step_ns, now_ns, command);
+                    integrate_to(&mut plant, drift.as_ref(), &mut integrated_ns, step_ns, now_ns, command);
                     let mut out = Outbox::default();
                     valve.tick(now_ns, &mut out);
                     send(profile.valve, &out, now_ns)?;
@@ -144,9 +150,19 @@ fn main() -> Result<()> {
 
 /// Integrates the rotator from where it was up to `now_ns` in whole steps,
 /// with the command held since then.
-fn integrate_to(plant: &mut hydractl_plant::Plant, integrated_ns: &mut u64, step_ns: u64, now_ns: u64, command: f64) {
+fn integrate_to(
+    plant: &mut hydractl_plant::Plant,
+    drift: Option<&Drift>,
+    integrated_ns: &mut u64,
+    step_ns: u64,
+    now_ns: u64,
+    command: f64,
+) {
     if now_ns.saturating_sub(*integrated_ns) > MAX_CATCH_UP_NS {
         *integrated_ns = now_ns - MAX_CATCH_UP_NS;
+    }
+    if let Some(drift) = drift {
+        plant.drift_to(drift.effects_at(plant.time()));
     }
     let steps = now_ns.saturating_sub(*integrated_ns) / step_ns;
     plant.advance(command, steps as usize);
