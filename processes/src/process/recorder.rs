@@ -23,11 +23,19 @@ pub fn run() -> Result<()> {
     let started = crate::start("recorder")?;
     let record = &started.args.record;
     let out = record.out.clone().context("recorder: --out FILE is required")?;
-    let metadata = BTreeMap::from([
+    let mut metadata = BTreeMap::from([
         ("software".to_owned(), format!("hydractl {}", env!("CARGO_PKG_VERSION"))),
         ("config".to_owned(), started.config.to_toml()),
         ("ipc_prefix".to_owned(), started.bus.scope().prefix().to_owned()),
+        // The log times are the monotonic clock's; the fleet needs the day.
+        (
+            "start_time".to_owned(),
+            humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string(),
+        ),
     ]);
+    if let Some(id) = started.config.machine.as_ref().and_then(|m| m.id.clone()) {
+        metadata.insert("machine_id".to_owned(), id);
+    }
     let keep_mb = record.split.keep_mb.or(started.config.recording.keep_mb);
     if keep_mb.is_some() && !record.split.splits() {
         anyhow::bail!("recorder: keep_mb needs a split to delete: --split-size-mb or --split-duration-s");

@@ -133,6 +133,9 @@ pub struct Config {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(default, deny_unknown_fields)]
 pub struct MachineConfig {
+    /// The machine's name in its fleet (a serial number, a fleet number):
+    /// written into every recording's metadata as `machine_id`.
+    pub id: Option<String>,
     /// `[plant]` keys that differ on the machine.
     pub plant: toml::Table,
     /// The machine's own effects (the model's `[effects]` do not apply).

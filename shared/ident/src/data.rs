@@ -48,6 +48,13 @@ pub enum DataError {
     },
     #[error("{path}:{line}: {message}")]
     Csv { path: PathBuf, line: u64, message: String },
+    #[error("{path}: no rows between {from_s} s and {to_s} s of the record (it spans {span_s:.1} s)")]
+    EmptyWindow {
+        path: PathBuf,
+        from_s: f64,
+        to_s: f64,
+        span_s: f64,
+    },
 }
 
 /// Columns by name, all of the same length, `t` strictly increasing.
@@ -175,6 +182,28 @@ impl Dataset {
         self.len
     }
 
+    /// The rows from `from_s` to `to_s` (exclusive), seconds after the
+    /// first row's `t`.
+    pub fn window(mut self, from_s: f64, to_s: f64) -> Result<Self, DataError> {
+        let t = self.column("t")?;
+        let first = t.first().copied().unwrap_or(0.0);
+        let rows = t.iter().map(|t| t - first).position(|s| s >= from_s).unwrap_or(t.len())
+            ..t.iter().map(|t| t - first).position(|s| s >= to_s).unwrap_or(t.len());
+        if rows.is_empty() {
+            return Err(DataError::EmptyWindow {
+                path: self.source.clone(),
+                from_s,
+                to_s,
+                span_s: t.last().map_or(0.0, |last| last - first),
+            });
+        }
+        for column in self.columns.values_mut() {
+            *column = column[rows.clone()].to_vec();
+        }
+        self.len = rows.len();
+        Ok(self)
+    }
+
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
@@ -209,6 +238,17 @@ mod tests {
 
     fn parse(text: &str) -> Result<Dataset, DataError> {
         Dataset::parse_csv(text, Path::new("run.csv"), &REQUIRED)
+    }
+
+    #[test]
+    fn a_window_keeps_the_rows_of_its_seconds_and_names_an_empty_one() {
+        let t: Vec<f64> = (0..10).map(|k| 5.0 + 0.5 * f64::from(k)).collect();
+        let d = Dataset::from_columns("day.csv", vec![("t", t.clone()), ("theta", t)]);
+        let w = d.clone().window(1.0, 2.0).expect("rows");
+        assert_eq!(w.column("t").expect("t"), &[6.0, 6.5]);
+        assert_eq!(w.len(), 2);
+        let err = d.window(9.0, 10.0).expect_err("empty").to_string();
+        assert!(err.contains("day.csv") && err.contains("4.5 s"), "{err}");
     }
 
     #[test]

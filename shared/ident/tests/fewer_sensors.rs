@@ -51,6 +51,16 @@ fn without_pressures_nothing_is_found_where_nothing_is_hidden_and_the_record_say
     );
     // The overall error is the angle's, the one output measured.
     assert!(diagnosis.baseline.validation_nrmse_by_output.keys().eq(["theta"]));
+    // Each fitted parameter's value beside its deviation: what a fleet follows.
+    assert!(diagnosis
+        .baseline
+        .params
+        .keys()
+        .eq(diagnosis.baseline.uncertainty.std.keys()));
+    assert_eq!(
+        diagnosis.baseline.params.get("inertia"),
+        Some(&diagnosis.baseline_model.plant.inertia)
+    );
 }
 
 /// A valve whose dead band is centred off zero: the null offset is fitted

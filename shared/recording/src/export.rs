@@ -7,7 +7,7 @@ use hydractl_samples::{
 };
 use serde::Serialize;
 
-use crate::{decode, read_messages, ReadOutcome, RecordingError};
+use crate::{decode, read_messages_in, ReadOutcome, RecordingError, Window};
 
 /// The columns the model tools read, in order.
 pub const MODEL_COLUMNS: [&str; 6] = ["t", "u", "p_a", "p_b", "theta", "theta_ref"];
@@ -102,6 +102,11 @@ pub struct Export {
 /// derived from it, joined by the reading's sequence number, from the first
 /// reading that has both to the last.
 pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
+    export_rows_in(path, None)
+}
+
+/// [`export_rows`] of the readings inside `window` alone.
+pub fn export_rows_in(path: &Path, window: Option<Window>) -> Result<Export, RecordingError> {
     let mut plant: BTreeMap<u64, PlantReading> = BTreeMap::new();
     let mut valve: BTreeMap<u64, ValveSample> = BTreeMap::new();
     let mut position: BTreeMap<u64, PositionSample> = BTreeMap::new();
@@ -109,7 +114,7 @@ pub fn export_rows(path: &Path) -> Result<Export, RecordingError> {
     let mut friction: BTreeMap<u64, FrictionSample> = BTreeMap::new();
     let mut torque: BTreeMap<u64, TorqueSample> = BTreeMap::new();
     let mut topics: BTreeMap<String, ()> = BTreeMap::new();
-    let read = read_messages(path, |m| {
+    let read = read_messages_in(path, window, |m| {
         topics.insert(m.topic.to_owned(), ());
         match m.topic {
             service::PLANT_READING => {

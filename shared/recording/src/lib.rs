@@ -22,9 +22,9 @@ mod read;
 mod write;
 
 pub use can::{decode_frame, encode_frame, is_can_frame, RecordedFrame, CAN_FRAME_KIND};
-pub use export::{export_rows, write_csv, Export, ModelRow, MODEL_COLUMNS, SIGNAL_COLUMNS};
+pub use export::{export_rows, export_rows_in, write_csv, Export, ModelRow, MODEL_COLUMNS, SIGNAL_COLUMNS};
 pub use info::{summarize, ChannelSummary, RecordingSummary};
-pub use read::{decode, read_messages, ReadOutcome, RecordedMessage};
+pub use read::{decode, read_messages, read_messages_in, ReadOutcome, RecordedMessage, Window};
 pub use write::{ChannelHandle, RecordOptions, RecordingWriter, Unrecorded, WriterNews};
 
 use std::path::PathBuf;

@@ -2,7 +2,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use hydractl_recording::{
-    decode, export_rows, read_messages, summarize, RecordOptions, RecordingError, RecordingWriter,
+    decode, export_rows, read_messages, read_messages_in, summarize, RecordOptions, RecordingError, RecordingWriter,
+    Window,
 };
 use hydractl_samples::{service, PlantReading, PositionSample, Recordable, SensorSample, ValveSample};
 
@@ -121,6 +122,51 @@ fn samples_come_back_bit_for_bit_with_their_metadata() {
         .expect("plant");
     assert!((plant.rate_hz - 1000.0).abs() < 1e-6);
     assert_eq!(valve.schema, "hydractl/msg/ValveSample");
+}
+
+/// Every message's (topic, log time) of `path` inside `window`, and the metadata.
+fn window_of(path: &Path, window: Option<Window>) -> (Vec<(String, u64)>, BTreeMap<String, String>) {
+    let mut seen = Vec::new();
+    let outcome = read_messages_in(path, window, |m| {
+        seen.push((m.topic.to_owned(), m.log_time_ns));
+        Ok(())
+    })
+    .expect("read");
+    (seen, outcome.metadata)
+}
+
+#[test]
+fn a_window_read_through_the_index_is_the_whole_reads_stretch() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("run.mcap");
+    let metadata = BTreeMap::from([("machine_id".to_owned(), "rotator-7".to_owned())]);
+    // Small chunks: the window spans several, and most are never read.
+    let options = RecordOptions {
+        chunk_bytes: 16 * 1024,
+        metadata: metadata.clone(),
+        ..RecordOptions::default()
+    };
+    record(&path, 3000, options);
+    let (all, _) = window_of(&path, None);
+    let first = all.iter().map(|(_, t)| *t).min().expect("messages");
+    let inside = |t: u64| (first + 1_000_000_000..first + 1_500_000_000).contains(&t);
+    let expected: Vec<_> = all.iter().filter(|(_, t)| inside(*t)).cloned().collect();
+    let window = Some(Window { from_s: 1.0, to_s: 1.5 });
+    let (got, got_metadata) = window_of(&path, window);
+    assert_eq!(got, expected);
+    assert_eq!(got_metadata, metadata);
+    assert!(
+        got.len() > 1500,
+        "half a second of four channels at 1 kHz: {}",
+        got.len()
+    );
+
+    // A file without its summary (a killed recorder) is read from its start.
+    let bytes = std::fs::read(&path).expect("read");
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 3 / 4]).expect("write");
+    let (got, _) = window_of(&cut, window);
+    assert_eq!(got, expected);
 }
 
 #[test]

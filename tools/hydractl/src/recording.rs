@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, Bus, RunScope, PREFIX_ENV};
 use hydractl_ident::Dataset;
 use hydractl_processes::recording::{republisher, Republisher};
-use hydractl_recording::{export_rows, read_messages, summarize, write_csv, MODEL_COLUMNS, SIGNAL_COLUMNS};
+use hydractl_recording::{export_rows_in, read_messages, summarize, write_csv, Window, MODEL_COLUMNS, SIGNAL_COLUMNS};
 
 #[derive(clap::Args)]
 pub struct RecordArgs {
@@ -240,7 +240,7 @@ pub fn mcap(command: McapCommand) -> Result<()> {
         }
         McapCommand::ExportCandump { file, out } => export_candump(&file, out.as_deref()),
         McapCommand::ExportCsv { file, out } => {
-            let export = exported(&file)?;
+            let export = exported(&file, None)?;
             write_csv(&export.rows, &out)?;
             crate::emit(&format!(
                 "{} rows of {} (and the stages' {}) to {}\n",
@@ -290,8 +290,8 @@ fn export_candump(file: &Path, out: Option<&Path>) -> Result<()> {
 }
 
 /// The model tools' rows of a recording, saying on stderr what was made up.
-fn exported(path: &Path) -> Result<hydractl_recording::Export> {
-    let export = export_rows(path)?;
+fn exported(path: &Path, window: Option<Window>) -> Result<hydractl_recording::Export> {
+    let export = export_rows_in(path, window)?;
     if let Some(why) = &export.read.truncated {
         tracing::warn!("{}: {why}", path.display());
     }
@@ -316,8 +316,14 @@ fn exported(path: &Path) -> Result<hydractl_recording::Export> {
 /// Measured data for the model and identification tools: a CSV, or a
 /// recording (`.mcap`), read as the columns `mcap export-csv` writes.
 pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
+    load_dataset_in(path, required, None)
+}
+
+/// [`load_dataset`] of a stretch of the record: a recording's through its
+/// chunk index, reading only the chunks the window overlaps.
+pub fn load_dataset_in(path: &Path, required: &[&str], window: Option<Window>) -> Result<Dataset> {
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
-        let rows = exported(path)?.rows;
+        let rows = exported(path, window)?.rows;
         let values: Vec<_> = rows.iter().map(hydractl_recording::ModelRow::values).collect();
         let mut columns: Vec<(&str, Vec<f64>)> = MODEL_COLUMNS
             .iter()
@@ -354,18 +360,28 @@ pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
         }
         return Ok(data);
     }
-    Ok(Dataset::from_csv(path, required)?)
+    let data = Dataset::from_csv(path, required)?;
+    Ok(match window {
+        Some(w) => data.window(w.from_s, w.to_s)?,
+        None => data,
+    })
 }
 
 /// The sensors' columns: a reading without one of them (a CAN PDO past its
 /// deadline, a node stopping) has nothing to compare the model with.
 const MEASURED_COLUMNS: [&str; 3] = ["theta", "p_a", "p_b"];
 
-/// A recording's readings where a measured sensor has no value (NaN) are
-/// left out: the data keeps its longest stretch in which every measured
-/// sensor has one, and says how many readings that left out and where.
-/// (The model tools need evenly spaced samples; a record too short after
-/// this is refused by them, naming its length.)
+/// A gap of missing readings this long or shorter (a PDO or two past its
+/// deadline) is bridged; a longer one (a node lost) is not.
+const MAX_BRIDGED_READINGS: usize = 20;
+
+/// A recording's readings where a measured sensor has no value (NaN): a
+/// gap of at most [`MAX_BRIDGED_READINGS`] between two readings with one is
+/// bridged by linear interpolation (at 1 kHz a few milliseconds, far
+/// shorter than anything the model resolves); across longer gaps the data
+/// keeps its longest stretch in which every measured sensor has a value.
+/// Both are said, with where. (The model tools need evenly spaced samples;
+/// a record too short after this is refused by them, naming its length.)
 fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) {
     let measured: Vec<&Vec<f64>> = columns
         .iter()
@@ -380,6 +396,34 @@ fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) 
     if missing.is_empty() {
         return;
     }
+    let t = columns.iter().find(|(name, _)| *name == "t").map(|(_, c)| c.clone());
+    let at = |k: usize| t.as_ref().map_or(f64::NAN, |t| t[k.min(n - 1)]);
+    let shown: Vec<String> = missing.iter().take(5).map(|&k| format!("{:.3} s", at(k))).collect();
+    let bridged = bridge_short_gaps(columns);
+    let measured: Vec<&Vec<f64>> = columns
+        .iter()
+        .filter(|(name, _)| MEASURED_COLUMNS.contains(name))
+        .map(|(_, c)| c)
+        .collect();
+    let complete = |k: usize| measured.iter().all(|c| c[k].is_finite());
+    let missing: Vec<usize> = (0..n).filter(|&k| !complete(k)).collect();
+    let said = format!(
+        "{}: {} reading(s) have no value from a sensor (at {}{})",
+        path.display(),
+        missing.len() + bridged,
+        shown.join(", "),
+        if missing.len() + bridged > shown.len() {
+            ", …"
+        } else {
+            ""
+        },
+    );
+    if missing.is_empty() {
+        tracing::warn!(
+            "{said}; each gap, at most {MAX_BRIDGED_READINGS} readings long, is bridged by linear interpolation"
+        );
+        return;
+    }
     // The stretches between missing readings; the longest is kept.
     let mut best = 0..0;
     let mut from = 0;
@@ -389,16 +433,9 @@ fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) 
         }
         from = k + 1;
     }
-    let t = columns.iter().find(|(name, _)| *name == "t").map(|(_, c)| c.clone());
-    let at = |k: usize| t.as_ref().map_or(f64::NAN, |t| t[k.min(n - 1)]);
-    let shown: Vec<String> = missing.iter().take(5).map(|&k| format!("{:.3} s", at(k))).collect();
     tracing::warn!(
-        "{}: {} reading(s) have no value from a sensor (at {}{}); the data keeps the longest stretch without one, \
-         {:.3} s to {:.3} s ({} of {} readings)",
-        path.display(),
-        missing.len(),
-        shown.join(", "),
-        if missing.len() > shown.len() { ", …" } else { "" },
+        "{said}; {bridged} in gaps of at most {MAX_BRIDGED_READINGS} readings are bridged by linear interpolation; \
+         across the longer gaps the data keeps the longest stretch, {:.3} s to {:.3} s ({} of {} readings)",
         at(best.start),
         at(best.end.saturating_sub(1)),
         best.len(),
@@ -407,5 +444,65 @@ fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) 
     for (_, column) in columns.iter_mut() {
         column.truncate(best.end);
         column.drain(..best.start);
+    }
+}
+
+/// Fills each column's runs of NaN no longer than [`MAX_BRIDGED_READINGS`]
+/// with a value on the line between its finite neighbours: the sensors'
+/// and what the stages derived from the same readings (the torque, the
+/// velocity estimate). Returns how many readings that completed.
+fn bridge_short_gaps(columns: &mut [(&str, Vec<f64>)]) -> usize {
+    let n = columns.first().map_or(0, |(_, c)| c.len());
+    let incomplete = |columns: &[(&str, Vec<f64>)]| {
+        (0..n)
+            .filter(|&k| {
+                columns
+                    .iter()
+                    .any(|(name, c)| MEASURED_COLUMNS.contains(name) && !c[k].is_finite())
+            })
+            .count()
+    };
+    let before = incomplete(columns);
+    for (_, column) in columns.iter_mut().filter(|(name, _)| *name != "t") {
+        let mut k = 0;
+        while k < n {
+            if column[k].is_finite() {
+                k += 1;
+                continue;
+            }
+            let end = (k..n).find(|&j| column[j].is_finite()).unwrap_or(n);
+            if k > 0 && end < n && end - k <= MAX_BRIDGED_READINGS {
+                let (a, b) = (column[k - 1], column[end]);
+                let span = (end - k + 1) as f64;
+                for (i, value) in column[k..end].iter_mut().enumerate() {
+                    *value = a + (b - a) * (i + 1) as f64 / span;
+                }
+            }
+            k = end;
+        }
+    }
+    before - incomplete(columns)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_short_gap_is_bridged_and_a_long_one_cut_at() {
+        let nan = f64::NAN;
+        let mut theta = vec![0.0, 1.0, nan, nan, 4.0, 5.0];
+        theta.extend(std::iter::repeat_n(nan, MAX_BRIDGED_READINGS + 1));
+        theta.extend([9.0, 9.0]);
+        let t: Vec<f64> = (0..theta.len()).map(|k| k as f64 * 0.001).collect();
+        let torque = theta.iter().map(|v| 10.0 * v).collect();
+        let mut columns = vec![("t", t), ("theta", theta), ("torque", torque), ("u", vec![0.5; 29])];
+        keep_longest_measured_stretch(Path::new("run.mcap"), &mut columns);
+        // The two readings between 1 and 4 lie on the line, and what was
+        // derived from them too; the stretch before the long gap is the
+        // longest kept.
+        assert_eq!(columns[1].1, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert_eq!(columns[2].1, vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0]);
+        assert_eq!(columns[0].1.len(), 6);
     }
 }

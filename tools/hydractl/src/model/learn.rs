@@ -102,7 +102,7 @@ pub fn learn(args: LearnArgs) -> Result<()> {
         bail!("--max-steps 0: give at least 1 (0 would write the start model unchanged)");
     }
     let options = options(&args.data)?;
-    let signals = load_signals(&args.data.data)?;
+    let signals = load_signals(&args.data)?;
     let start = args.model.as_deref().map(load_model).transpose()?;
     let bar = LearnBar {
         bar: Progress::new("model learn", args.json),

@@ -50,6 +50,25 @@ pub struct DataArgs {
     /// Share of the data, from its start, used to estimate; the rest validates.
     #[arg(long, default_value_t = 0.7)]
     pub estimation_fraction: f64,
+    /// Only the record from this many seconds after its start (a window
+    /// of a long recording, read through its index).
+    #[arg(long, value_name = "SECONDS", requires = "to")]
+    pub from: Option<f64>,
+    /// Only the record up to this many seconds after its start.
+    #[arg(long, value_name = "SECONDS", requires = "from")]
+    pub to: Option<f64>,
+}
+
+impl DataArgs {
+    fn window(&self) -> Result<Option<hydractl_recording::Window>> {
+        match (self.from, self.to) {
+            (Some(from_s), Some(to_s)) if from_s >= 0.0 && to_s > from_s => {
+                Ok(Some(hydractl_recording::Window { from_s, to_s }))
+            }
+            (Some(from), Some(to)) => bail!("--from {from} --to {to}: need 0 <= from < to"),
+            _ => Ok(None),
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -118,7 +137,7 @@ pub fn run(command: ModelCommand) -> Result<()> {
         ModelCommand::Add(args) => add(args),
         ModelCommand::Learn(args) => learn::learn(args),
         ModelCommand::Report(args) => crate::report::write(
-            &load_signals(&args.data.data)?,
+            &load_signals(&args.data)?,
             &load_model(&args.model)?,
             options(&args.data)?,
             &args.out,
@@ -136,8 +155,8 @@ pub(crate) fn write_config(out: &std::path::Path, header: String, config: &hydra
     std::fs::write(out, &text).with_context(|| format!("cannot write {}", out.display()))
 }
 
-pub fn load_signals(path: &Path) -> Result<Signals> {
-    let data = crate::recording::load_dataset(path, &greybox::REQUIRED_COLUMNS)?;
+pub fn load_signals(data: &DataArgs) -> Result<Signals> {
+    let data = crate::recording::load_dataset_in(&data.data, &greybox::REQUIRED_COLUMNS, data.window()?)?;
     Ok(Signals::from_dataset(&data)?)
 }
 
@@ -182,7 +201,7 @@ fn fit(args: FitArgs) -> Result<()> {
         Some(path) => hydractl_config::Config::load(path)?.plant,
         None => hydractl_config::Config::default_sim()?.plant,
     };
-    let signals = load_signals(&args.data.data)?;
+    let signals = load_signals(&args.data)?;
     let progress = Progress::new("model fit", false);
     let steps = 1 + kinds.len();
     progress.step("fitting the baseline", 0, steps);
@@ -202,7 +221,7 @@ fn fit(args: FitArgs) -> Result<()> {
 }
 
 fn compare(args: CompareArgs) -> Result<()> {
-    let signals = load_signals(&args.data.data)?;
+    let signals = load_signals(&args.data)?;
     let model = load_model(&args.model)?;
     let comparison = greybox::compare(
         &model.plant,
@@ -257,7 +276,7 @@ fn compare(args: CompareArgs) -> Result<()> {
 }
 
 fn diagnose(args: DiagnoseArgs) -> Result<()> {
-    let signals = load_signals(&args.data.data)?;
+    let signals = load_signals(&args.data)?;
     let model = args.model.as_deref().map(load_model).transpose()?;
     let progress = Progress::new("model diagnose", args.json);
     let diagnosis = greybox::diagnose_with(&signals, model.as_ref(), options(&args.data)?, &progress)
@@ -309,7 +328,7 @@ pub fn diagnosis_table(diagnosis: &greybox::Diagnosis) -> String {
 
 fn add(args: AddArgs) -> Result<()> {
     let kind = parse_kind(&args.effect)?;
-    let signals = load_signals(&args.data.data)?;
+    let signals = load_signals(&args.data)?;
     let model = load_model(&args.model)?;
     let options = options(&args.data)?;
     // The error before is measured on this data, whatever data the model came from.

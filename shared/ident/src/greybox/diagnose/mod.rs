@@ -73,6 +73,9 @@ pub struct Baseline {
     pub validation_nrmse_by_output: BTreeMap<String, f64>,
     /// Fit per output, percent: 100 (1 − NRMSE).
     pub fit_percent: BTreeMap<String, f64>,
+    /// Its fitted parameters, named as in `uncertainty.std` (`inertia`,
+    /// `coulomb_friction.coulomb`): what a fleet follows over a machine's life.
+    pub params: BTreeMap<String, f64>,
     /// Its parameters' standard deviations, and the pairs the data cannot separate.
     pub uncertainty: Uncertainty,
 }
@@ -475,6 +478,11 @@ pub fn diagnose_with(
             validation_nrmse: overall,
             validation_nrmse_by_output: before,
             fit_percent,
+            params: uncertainty
+                .std
+                .keys()
+                .filter_map(|name| Some((name.clone(), super::fit::param_value(&base, name)?)))
+                .collect(),
             uncertainty,
         },
         candidates,

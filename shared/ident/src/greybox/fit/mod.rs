@@ -316,6 +316,32 @@ fn part_cost(part: Part, w: &Working, signals: &Signals, range: Range<usize>, lo
     }
 }
 
+/// The value of a parameter named as [`Uncertainty::std`] names it: a
+/// `[plant]` key, or `effect.key`.
+pub(crate) fn param_value(model: &Model, name: &str) -> Option<f64> {
+    let working = Working::of(model);
+    let knob = match name.split_once('.') {
+        Some((effect, key)) => {
+            let kind = EffectKind::from_name(effect).ok()?;
+            Knob::Effect(kind, kind.params().iter().find(|s| s.key == key)?.key)
+        }
+        None => *[
+            Knob::BulkModulus,
+            Knob::FlowGain,
+            Knob::FlowPressureCoefficient,
+            Knob::Leakage,
+            Knob::ValveNaturalFrequency,
+            Knob::ValveDamping,
+            Knob::Inertia,
+            Knob::ViscousFriction,
+            Knob::LoadTorque,
+        ]
+        .iter()
+        .find(|k| k.name() == name)?,
+    };
+    Some(working.value(knob))
+}
+
 /// Validation NRMSE per output: ‖y − ŷ‖ / ‖y − mean(y)‖ on `range`, for
 /// `theta`, and where the record has them `p_a`, `p_b` and `pressures`
 /// (both chambers together).
