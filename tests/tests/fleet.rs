@@ -2,10 +2,11 @@
 //! days, one of them recorded by the whole stack on the virtual CAN bus,
 //! diagnosed together; the two drifting machines named with their effect
 //! and direction, nothing on the steady one, bad recordings rows with
-//! their error, a second run skipping everything done. The test itself is
-//! `tools/fleet/tests/test_fleet.py`, run here with the CAN runs' scope of
-//! this test and the Python that has the package (`HYDRACTL_PYTHON`, where
-//! `.ci/run` installs it; required there by `HYDRACTL_REQUIRE_FLEET=1`).
+//! their error, a second run skipping everything done. The tests themselves
+//! are `tools/fleet/tests` (the fleet end to end, the trend's rules), run
+//! here with this test's run scope for the CAN runs and the Python that
+//! has the package (`HYDRACTL_PYTHON`, where `.ci/run` installs it;
+//! required there by `HYDRACTL_REQUIRE_FLEET=1`).
 
 use std::path::Path;
 use std::process::Command;
@@ -31,9 +32,10 @@ fn the_fleet_names_the_drifting_machines_and_nothing_on_the_steady_one() {
         return;
     }
     let scope = unique_scope("fleet");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/fleet/tests/test_fleet.py");
+    let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/fleet/tests");
     let out = Command::new(&python)
-        .arg(script)
+        .args(["-m", "unittest", "discover", "-v", "-s"])
+        .arg(tests)
         .env("HYDRACTL", binary_dir().join("hydractl"))
         .env(PREFIX_ENV, scope.prefix())
         .env("HYDRACTL_STATE_DIR", state_dir())

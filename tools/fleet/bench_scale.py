@@ -33,11 +33,11 @@ def make(root: Path, machines: int, days: int, seconds: int) -> None:
             coulomb = 20 + 3 * d * (m == 0)
             subprocess.run([HYDRACTL, "sim", "--duration", str(seconds), "--seed", str(100 * m + d),
                             "--effect", f"coulomb_friction:coulomb={coulomb},breakaway={1.4 * coulomb}",
-                            "--out", str(folder / f"2026-11-{3 + d:02d}.csv")], check=True, capture_output=True)  # fmt: skip
+                            "--out", str(folder / f"2026-11-{3 + d:02d}.csv")], check=True, capture_output=True)
     (root / "refs").mkdir()
     for m in range(machines):
         subprocess.run([HYDRACTL, "model", "learn", "--data", str(root / "fleet" / f"machine-{m}" / "2026-11-03.csv"),
-                        "--out", str(root / "refs" / f"machine-{m}.toml")], check=True, capture_output=True)  # fmt: skip
+                        "--out", str(root / "refs" / f"machine-{m}.toml")], check=True, capture_output=True)
 
 
 def ray_worker_rss_mb(stop: threading.Event, peak: list[float]) -> None:
@@ -58,7 +58,7 @@ def ray_worker_rss_mb(stop: threading.Event, peak: list[float]) -> None:
 def diagnose(root: Path, out: str, extra: list[str], env: dict | None = None) -> dict:
     started = time.monotonic()
     done = subprocess.run([FLEET, "diagnose", str(root / "fleet"), "--model", str(root / "refs"), "--out", str(root / out),
-                           "--hydractl", HYDRACTL, "--json", *extra], check=True, capture_output=True, text=True, env=env)  # fmt: skip
+                           "--hydractl", HYDRACTL, "--json", *extra], check=True, capture_output=True, text=True, env=env)
     figures = json.loads(done.stdout)
     figures["wall_s"] = time.monotonic() - started
     return figures
@@ -102,7 +102,7 @@ def main() -> None:
             "diagnosis_max_rss_mb": rss,
             "ray_worker_max_rss_mb": peak[0],
             "parquet_bytes_per_row": sum(f.stat().st_size for f in (root / "ray").glob("*.parquet")) / len(rows),
-        }, indent=2))  # fmt: skip
+        }, indent=2))
 
 
 if __name__ == "__main__":

@@ -71,11 +71,11 @@ def fit_line(days: list[float], values: list[float]) -> Line | None:
         intercept = _median([v - slope * d for d, v in zip(days, values)])
         residuals = [v - intercept - slope * d for d, v in zip(days, values)]
         scale = 1.4826 * _median([abs(r) for r in residuals])
-        if scale > 0:
+        # Nor is a sliver off a near-perfect line an outlier.
+        limit = max(OUTLIER_DEVIATIONS * scale, 0.05 * abs(_median(values)))
+        if limit > 0:
             far = sorted(range(len(days)), key=lambda i: -abs(residuals[i]))[: len(days) // 4]
-            # Nor is a sliver off a near-perfect line an outlier.
-            floor = 0.05 * abs(_median(values))
-            out = {i for i in far if abs(residuals[i]) > max(OUTLIER_DEVIATIONS * scale, floor)}
+            out = {i for i in far if abs(residuals[i]) > limit}
             if out:
                 kept = [i for i in range(len(days)) if i not in out]
                 line = _least_squares([days[i] for i in kept], [values[i] for i in kept])

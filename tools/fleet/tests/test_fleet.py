@@ -38,13 +38,13 @@ def day_name(d: int) -> str:
 
 
 def hydractl(*args: str) -> None:
-    done = subprocess.run([HYDRACTL, *args], capture_output=True, text=True)
+    done = subprocess.run([HYDRACTL, *args], capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise AssertionError(f"hydractl {' '.join(args)}: {done.stderr[-3000:]}")
 
 
 def fleet(*args: str) -> subprocess.CompletedProcess:
-    done = subprocess.run(FLEET + list(args), capture_output=True, text=True)
+    done = subprocess.run(FLEET + list(args), capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise AssertionError(f"hydractl-fleet {' '.join(args)}: {done.stderr[-3000:]}")
     return done
@@ -80,13 +80,13 @@ def make_fleet(root: Path) -> None:
             f"[machine.effects.coulomb_friction]\ncoulomb = {coulomb(d)}\nbreakaway = {1.4 * coulomb(d)}\n"
         )
         hydractl("run", "--config", str(root / f"a{d}.toml"), "--duration", CAN_S,
-                 "--record", str(data / "can-dump" / f"{day_name(d)}.mcap"))  # fmt: skip
+                 "--record", str(data / "can-dump" / f"{day_name(d)}.mcap"))
         hydractl("sim", "--config", str(root / "b.toml"), "--duration", SIM_S, "--seed", str(200 + d),
                  "--effect", f"deadzone:width={dead_band(d)}",
-                 "--out", str(data / "rotator-b" / f"{day_name(d)}.csv"))  # fmt: skip
+                 "--out", str(data / "rotator-b" / f"{day_name(d)}.csv"))
         hydractl("sim", "--config", str(root / "c.toml"), "--duration", SIM_S, "--seed", str(300 + d),
                  "--effect", "coulomb_friction:coulomb=30,breakaway=42",
-                 "--out", str(data / "rotator-c" / f"{day_name(d)}.csv"))  # fmt: skip
+                 "--out", str(data / "rotator-c" / f"{day_name(d)}.csv"))
     # Each machine's reference: the model `model learn` made of its first day.
     for machine, first in (("rotator-a", "can-dump/2026-11-03.mcap"), ("rotator-b", "rotator-b/2026-11-03.csv"), ("rotator-c", "rotator-c/2026-11-03.csv")):
         hydractl("model", "learn", "--data", str(data / first), "--out", str(refs / f"{machine}.toml"))
@@ -114,7 +114,7 @@ class Fleet(unittest.TestCase):
         cls.results = cls.root / "results"
         cls.first = json.loads(
             fleet("diagnose", str(cls.root / "fleet"), "--model", str(cls.root / "refs"),
-                  "--out", str(cls.results), "--cpus", "2", "--hydractl", HYDRACTL, "--json").stdout  # fmt: skip
+                  "--out", str(cls.results), "--cpus", "2", "--hydractl", HYDRACTL, "--json").stdout
         )
         cls.machines = trend(cls.results)
 
@@ -180,7 +180,7 @@ class Fleet(unittest.TestCase):
     def test_a_second_run_skips_everything_done(self):
         again = json.loads(
             fleet("diagnose", str(self.root / "fleet"), "--model", str(self.root / "refs"),
-                  "--out", str(self.results), "--serial", "--hydractl", HYDRACTL, "--json").stdout  # fmt: skip
+                  "--out", str(self.results), "--serial", "--hydractl", HYDRACTL, "--json").stdout
         )
         self.assertEqual((again["tasks"], again["skipped"]), (0, 3 * DAYS + 2), again)
 
@@ -191,7 +191,7 @@ class Fleet(unittest.TestCase):
         day = self.root / "fleet" / "can-dump" / f"{day_name(DAYS - 1)}.mcap"
         run = json.loads(
             fleet("diagnose", str(day), "--model", str(self.root / "refs"), "--out", str(windows),
-                  "--window", "6", "--serial", "--hydractl", HYDRACTL, "--json").stdout  # fmt: skip
+                  "--window", "6", "--serial", "--hydractl", HYDRACTL, "--json").stdout
         )
         self.assertEqual((run["tasks"], run["failed"]), (2, 0), run)
         sys.path.insert(0, str(REPO / "tools/fleet"))
