@@ -60,9 +60,13 @@ SCHEMA = pa.schema(
 )
 
 
+# The columns of name → value maps: dicts in a row, lists of pairs in Arrow.
+MAP_COLUMNS = ("reference_params", "nrmse", "baseline_params", "baseline_std")
+
+
 def _as_arrow(row: dict) -> dict:
     out = dict(row)
-    for key in ("reference_params", "nrmse", "baseline_params", "baseline_std"):
+    for key in MAP_COLUMNS:
         if out[key] is not None:
             out[key] = list(out[key].items())
     out["effects"] = [dict(e, params=list(e["params"].items())) for e in out["effects"]]
@@ -90,7 +94,7 @@ def read(results: Path) -> list[dict]:
     table = ds.dataset(results, format="parquet", schema=SCHEMA).to_table()
     rows = table.to_pylist()
     for row in rows:
-        for key in ("reference_params", "nrmse", "baseline_params", "baseline_std"):
+        for key in MAP_COLUMNS:
             if row[key] is not None:
                 row[key] = dict(row[key])
         for effect in row["effects"] or []:
