@@ -38,7 +38,7 @@ fn a_can_runs_recording_with_a_valve_kill_is_fitted_and_its_missing_effect_named
             "--config",
             config.to_str().expect("path"),
             "--duration",
-            "14",
+            "22",
             "--record",
             recording.to_str().expect("path"),
         ],
@@ -49,7 +49,7 @@ fn a_can_runs_recording_with_a_valve_kill_is_fitted_and_its_missing_effect_named
     );
     // Late in the run: after the kill the valve stays latched neutral and
     // the machine still, which tells the model nothing.
-    std::thread::sleep(Duration::from_secs(10));
+    std::thread::sleep(Duration::from_secs(18));
     let valve = observer.pid_of("valve", Duration::from_secs(5)).expect("valve pid");
     signal(valve, Signal::SIGKILL);
     let mut run = run;
