@@ -6,8 +6,10 @@
 //! the unchanged machine it raises nothing.
 
 use std::path::Path;
+use std::time::{Duration, Instant};
 
 use hydractl_system_tests::*;
+use nix::sys::signal::Signal;
 
 fn config(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../config").join(name)
@@ -30,7 +32,30 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
         ),
     )
     .expect("config");
-    let summary = run_config_for(&scope, &dir, &drifting, "50");
+    let summary_path = dir.join("summary.json");
+    let mut run = start_run(
+        &scope,
+        &[
+            "--config",
+            drifting.to_str().expect("path"),
+            "--duration",
+            "50",
+            "--summary-json",
+            summary_path.to_str().expect("path"),
+        ],
+    );
+    // Named, the drift's model is written; the run goes on a few seconds
+    // more, long enough for a second naming to show, and is stopped as a
+    // person would.
+    let deadline = Instant::now() + Duration::from_secs(50);
+    while !learned.exists() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(learned.exists(), "the drift is named while the run goes on");
+    std::thread::sleep(Duration::from_secs(5));
+    signal(run.0.id(), Signal::SIGINT);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary = read_json(&summary_path);
     let drifts = summary["model_drift"].as_array().expect("model_drift");
     let shadow = &summary["shadow"];
     assert_eq!(drifts.len(), 1, "one drift, named once: {drifts:?}, shadow {shadow}");
@@ -48,7 +73,7 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
     let model: toml::Table = toml::from_str(&text).expect("a model file");
     let learned_width = model["effects"]["deadzone"]["width"].as_float().expect("its dead-zone");
     assert!((learned_width - width).abs() < 1e-9, "{learned_width} against {width}");
-    assert!(shadow["windows"].as_u64().expect("windows") >= 30, "{shadow}");
+    assert!(shadow["windows"].as_u64().expect("windows") >= 20, "{shadow}");
     assert!(
         shadow["fit_percent"]["theta"].as_f64().expect("theta's fit") > 90.0,
         "{shadow}"
@@ -79,13 +104,13 @@ fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
             "--config",
             unchanged.to_str().expect("path"),
             "--duration",
-            "45",
+            "30",
             "--summary-json",
             summary_path.to_str().expect("path"),
         ],
     );
     // `hydractl status` shows the shadow's fit while the run goes on.
-    std::thread::sleep(std::time::Duration::from_secs(20));
+    std::thread::sleep(Duration::from_secs(20));
     let status = status(&scope);
     assert_eq!(process(&status, "shadow")["healthy"], true, "{status}");
     let watching = &status["shadow"];
@@ -94,7 +119,7 @@ fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
         watching["fit_percent"]["theta"].as_f64().expect("fit") > 85.0,
         "{status}"
     );
-    assert!(wait_exit(&mut run.0, std::time::Duration::from_secs(90)).success());
+    assert!(wait_exit(&mut run.0, Duration::from_secs(90)).success());
     let summary = read_json(&summary_path);
     assert_eq!(
         summary["model_drift"],
@@ -103,7 +128,7 @@ fn on_the_unchanged_machine_the_shadow_fits_and_raises_nothing() {
         summary["model_drift"]
     );
     let shadow = &summary["shadow"];
-    assert!(shadow["windows"].as_u64().expect("windows") >= 35, "{shadow}");
+    assert!(shadow["windows"].as_u64().expect("windows") >= 22, "{shadow}");
     for output in ["theta", "p_a", "p_b"] {
         let fit = shadow["fit_percent"][output].as_f64().expect("fit");
         assert!(fit > 85.0, "{output}: {fit} % in {shadow}");

@@ -1,7 +1,7 @@
 """The fleet end to end, as a reliability engineer would run it: three
-machines with plants of their own, eight days each, one of them recorded by
-the whole stack on the virtual CAN bus as the vehicle records; one whose
-Coulomb friction grows day by day, one whose valve dead band widens, one
+machines with plants of their own, six to eight days each, one of them
+recorded by the whole stack on the virtual CAN bus as the vehicle records;
+one whose Coulomb friction grows day by day, one whose valve dead band widens, one
 steady; a truncated recording and a CSV without its angle among them.
 Diagnosed on a local Ray, the trend must name the two drifting machines
 with the right effect and direction, within two days of where a person
@@ -13,6 +13,7 @@ caller set (`HYDRACTL_IPC_PREFIX`, `HYDRACTL_STATE_DIR`)."""
 
 from __future__ import annotations
 
+import concurrent.futures
 import datetime as dt
 import json
 import os
@@ -27,6 +28,8 @@ REPO = Path(__file__).resolve().parents[3]
 HYDRACTL = os.environ.get("HYDRACTL", str(REPO / "target/release/hydractl"))
 FLEET = [str(Path(sys.executable).parent / "hydractl-fleet")]
 DAYS = 8
+# The CAN machine drives in real time: fewer days keep this test short.
+CAN_DAYS = 6
 FIRST = dt.date(2026, 11, 3)
 SHARE = 0.2
 SIM_S = "40"
@@ -37,17 +40,25 @@ def day_name(d: int) -> str:
     return (FIRST + dt.timedelta(days=d)).isoformat()
 
 
-def hydractl(*args: str) -> None:
-    done = subprocess.run([HYDRACTL, *args], capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise AssertionError(f"hydractl {' '.join(args)}: {done.stderr[-3000:]}")
+# Off the loop's CPU (`loop_cpu = 1` in the configs) at the lowest priority,
+# as the test runner runs whatever only computes (through exec: a
+# `preexec_fn` is unsafe beside the thread that drives the CAN machine).
+BESIDE_THE_LOOP = [sys.executable, "-c", "import os, sys; os.sched_setaffinity(0, {0}); os.nice(19); os.execvp(sys.argv[1], sys.argv[1:])"]
 
 
-def fleet(*args: str) -> subprocess.CompletedProcess:
-    done = subprocess.run(FLEET + list(args), capture_output=True, text=True, check=False)
+def run(argv: list[str], beside: bool) -> subprocess.CompletedProcess:
+    done = subprocess.run((BESIDE_THE_LOOP if beside else []) + argv, capture_output=True, text=True, check=False)
     if done.returncode != 0:
-        raise AssertionError(f"hydractl-fleet {' '.join(args)}: {done.stderr[-3000:]}")
+        raise AssertionError(f"{' '.join(argv)}: {done.stderr[-3000:]}")
     return done
+
+
+def hydractl(*args: str, beside: bool = False) -> None:
+    run([HYDRACTL, *args], beside)
+
+
+def fleet(*args: str, beside: bool = False) -> subprocess.CompletedProcess:
+    return run(FLEET + list(args), beside)
 
 
 # rotator-a, on CAN: Coulomb friction 30 N·m on the first day, 3 more a day.
@@ -60,11 +71,11 @@ def dead_band(d: int) -> float:
     return 0.04 + 0.006 * d
 
 
-def make_fleet(root: Path) -> None:
+def make_simulated_machines(root: Path) -> dict:
+    """rotator-b and rotator-c: eight days each, each machine's reference the
+    model `model learn` made of its first day, diagnosed on a local Ray of
+    one CPU beside the loop. Returns the diagnosis's summary."""
     data, refs = root / "fleet", root / "refs"
-    for folder in ("can-dump", "rotator-b", "rotator-c"):
-        (data / folder).mkdir(parents=True)
-    refs.mkdir()
     plants = {
         "b": "[plant]\ninertia = 17.0\nflow_gain = 4.4e-5\n",
         "c": "[plant]\ninertia = 21.0\nviscous_friction = 15.0\n",
@@ -72,24 +83,44 @@ def make_fleet(root: Path) -> None:
     for m, plant in plants.items():
         (root / f"{m}.toml").write_text(f'base = "{REPO}/config/sim.toml"\n{plant}')
     for d in range(DAYS):
-        # The CAN machine names itself in its recordings' metadata; its
-        # files sit in a folder that is not its name.
-        (root / f"a{d}.toml").write_text(
-            f'base = "{REPO}/config/can.toml"\n[machine]\nid = "rotator-a"\nseed = {10 + d}\n'
-            f"[machine.plant]\ninertia = 24.0\nviscous_friction = 22.0\n"
-            f"[machine.effects.coulomb_friction]\ncoulomb = {coulomb(d)}\nbreakaway = {1.4 * coulomb(d)}\n"
-        )
-        hydractl("run", "--config", str(root / f"a{d}.toml"), "--duration", CAN_S,
-                 "--record", str(data / "can-dump" / f"{day_name(d)}.mcap"))
         hydractl("sim", "--config", str(root / "b.toml"), "--duration", SIM_S, "--seed", str(200 + d),
                  "--effect", f"deadzone:width={dead_band(d)}",
-                 "--out", str(data / "rotator-b" / f"{day_name(d)}.csv"))
+                 "--out", str(data / "rotator-b" / f"{day_name(d)}.csv"), beside=True)
         hydractl("sim", "--config", str(root / "c.toml"), "--duration", SIM_S, "--seed", str(300 + d),
                  "--effect", "coulomb_friction:coulomb=30,breakaway=42",
-                 "--out", str(data / "rotator-c" / f"{day_name(d)}.csv"))
-    # Each machine's reference: the model `model learn` made of its first day.
-    for machine, first in (("rotator-a", "can-dump/2026-11-03.mcap"), ("rotator-b", "rotator-b/2026-11-03.csv"), ("rotator-c", "rotator-c/2026-11-03.csv")):
-        hydractl("model", "learn", "--data", str(data / first), "--out", str(refs / f"{machine}.toml"))
+                 "--out", str(data / "rotator-c" / f"{day_name(d)}.csv"), beside=True)
+    for machine in ("rotator-b", "rotator-c"):
+        hydractl("model", "learn", "--data", str(data / machine / f"{day_name(0)}.csv"),
+                 "--out", str(refs / f"{machine}.toml"), beside=True)
+    return json.loads(
+        fleet("diagnose", str(data / "rotator-b"), str(data / "rotator-c"), "--model", str(refs),
+              "--out", str(root / "results"), "--cpus", "1", "--hydractl", HYDRACTL, "--json", beside=True).stdout
+    )
+
+
+def make_fleet(root: Path) -> dict:
+    """The whole fleet; the simulated machines made and diagnosed while the
+    CAN machine drives (a night's run meeting a vehicle still out), which
+    keeps this test short. Returns that first diagnosis's summary."""
+    data, refs = root / "fleet", root / "refs"
+    for folder in ("can-dump", "rotator-b", "rotator-c"):
+        (data / folder).mkdir(parents=True)
+    refs.mkdir()
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
+        simulated = pool.submit(make_simulated_machines, root)
+        for d in range(CAN_DAYS):
+            # The CAN machine names itself in its recordings' metadata; its
+            # files sit in a folder that is not its name.
+            (root / f"a{d}.toml").write_text(
+                f'base = "{REPO}/config/can.toml"\n[machine]\nid = "rotator-a"\nseed = {10 + d}\n'
+                f"[machine.plant]\ninertia = 24.0\nviscous_friction = 22.0\n"
+                f"[machine.effects.coulomb_friction]\ncoulomb = {coulomb(d)}\nbreakaway = {1.4 * coulomb(d)}\n"
+            )
+            hydractl("run", "--config", str(root / f"a{d}.toml"), "--duration", CAN_S,
+                     "--record", str(data / "can-dump" / f"{day_name(d)}.mcap"))
+        early = simulated.result()
+    hydractl("model", "learn", "--data", str(data / "can-dump" / f"{day_name(0)}.mcap"),
+             "--out", str(refs / "rotator-a.toml"))
     # What a night's copy brings too: a recording cut short, a CSV without its angle.
     whole = (data / "can-dump" / f"{day_name(0)}.mcap").read_bytes()
     (data / "rotator-c" / "2026-11-11.mcap").write_bytes(whole[:6000])
@@ -99,6 +130,7 @@ def make_fleet(root: Path) -> None:
     (data / "rotator-b" / "2026-11-11.csv").write_text(
         "\n".join(",".join(f for i, f in enumerate(line.split(",")) if i != theta) for line in lines) + "\n"
     )
+    return early
 
 
 def trend(results: Path, until: str | None = None) -> dict:
@@ -110,7 +142,7 @@ class Fleet(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.root = Path(tempfile.mkdtemp(prefix="hydractl-fleet-"))
-        make_fleet(cls.root)
+        cls.early = make_fleet(cls.root)
         cls.results = cls.root / "results"
         cls.first = json.loads(
             fleet("diagnose", str(cls.root / "fleet"), "--model", str(cls.root / "refs"),
@@ -126,14 +158,17 @@ class Fleet(unittest.TestCase):
     def drifts(self, machine: str) -> list[dict]:
         return self.machines[machine]["drifting"]
 
-    def test_every_recording_is_a_row(self):
-        self.assertEqual(self.first["tasks"], 3 * DAYS + 2, self.first)
+    def test_every_recording_is_a_row_and_a_night_does_only_the_new_ones(self):
+        self.assertEqual((self.early["tasks"], self.early["failed"]), (2 * DAYS, 0), self.early)
+        self.assertEqual((self.first["tasks"], self.first["skipped"]), (CAN_DAYS + 2, 2 * DAYS), self.first)
         self.assertEqual(self.first["failed"], 2, self.first)
         self.assertEqual(sorted(self.machines), ["rotator-a", "rotator-b", "rotator-c"])
-        self.assertEqual(self.machines["rotator-a"]["recordings"], DAYS)
+        self.assertEqual(self.machines["rotator-a"]["recordings"], CAN_DAYS)
 
     def test_growing_friction_is_named_rising(self):
-        named = [d for d in self.drifts("rotator-a") if d.get("effect") == "coulomb_friction"]
+        # The friction's level is named rising; its Stribeck velocity, which
+        # eight short days identify poorly, may be named beside it.
+        named = [d for d in self.drifts("rotator-a") if d.get("parameter") == "coulomb_friction.coulomb"]
         self.assertTrue(named, self.drifts("rotator-a"))
         self.assertTrue(all(d["direction"] == "rising" and d["slope"] > 0 for d in named), named)
         self.assertEqual({d.get("effect") for d in self.drifts("rotator-a")}, {"coulomb_friction"}, self.drifts("rotator-a"))
@@ -156,9 +191,9 @@ class Fleet(unittest.TestCase):
             series = self.series(machine, parameter)
             reference = series[0][2]
             away = [abs(v - reference) > SHARE * abs(reference) for _, v, _ in series]
-            person = next(d for d in range(DAYS) if away[d] and away[d:].count(False) <= 1)
+            person = next(d for d in range(len(series)) if away[d] and away[d:].count(False) <= 1)
             named = next(
-                (d for d in range(DAYS) if any(x.get("effect") == effect for x in trend(self.results, day_name(d))[machine]["drifting"])),
+                (d for d in range(len(series)) if any(x.get("effect") == effect for x in trend(self.results, day_name(d))[machine]["drifting"])),
                 None,
             )
             self.assertIsNotNone(named, f"{machine}: never named")
@@ -182,13 +217,13 @@ class Fleet(unittest.TestCase):
             fleet("diagnose", str(self.root / "fleet"), "--model", str(self.root / "refs"),
                   "--out", str(self.results), "--serial", "--hydractl", HYDRACTL, "--json").stdout
         )
-        self.assertEqual((again["tasks"], again["skipped"]), (0, 3 * DAYS + 2), again)
+        self.assertEqual((again["tasks"], again["skipped"]), (0, 2 * DAYS + CAN_DAYS + 2), again)
 
     def test_a_long_recording_is_diagnosed_window_by_window(self):
         """Each window read through the recording's index: a row each, at
         its own start and of its own length, the reference fitting it."""
         windows = self.root / "windows"
-        day = self.root / "fleet" / "can-dump" / f"{day_name(DAYS - 1)}.mcap"
+        day = self.root / "fleet" / "can-dump" / f"{day_name(CAN_DAYS - 1)}.mcap"
         run = json.loads(
             fleet("diagnose", str(day), "--model", str(self.root / "refs"), "--out", str(windows),
                   "--window", "6", "--serial", "--hydractl", HYDRACTL, "--json").stdout
