@@ -235,8 +235,7 @@ pub fn diagnose_with(
         finished(&format!("the baseline's {} part", part.name()));
         base = refit;
         base_costs[i] = fitted.cost;
-        uncertainty.std.extend(fitted.uncertainty.std);
-        uncertainty.inseparable.extend(fitted.uncertainty.inseparable);
+        uncertainty.extend(fitted.uncertainty);
     }
     let base_effects = base.effects()?;
     let validation = signals.split(options.estimation_fraction)..signals.len();
@@ -368,6 +367,7 @@ pub fn diagnose_with(
                 .filter_map(|(k, v)| k.strip_prefix(&prefix).map(|key| (key.to_owned(), *v)))
                 .collect(),
             inseparable: fitted.uncertainty.inseparable,
+            inseparable_pairs: fitted.uncertainty.inseparable_pairs,
         };
         Ok((
             Candidate {

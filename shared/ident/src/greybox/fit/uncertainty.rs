@@ -12,6 +12,25 @@ pub struct Uncertainty {
     pub std: BTreeMap<String, f64>,
     /// Pairs the data cannot separate: |correlation| above 0.95, with it.
     pub inseparable: Vec<String>,
+    /// The same pairs by name, for programs (the fleet's trend names no
+    /// drift of a parameter the data fixes only in a combination).
+    pub inseparable_pairs: Vec<InseparablePair>,
+}
+
+/// Two fitted parameters the data fixes only in a combination.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct InseparablePair {
+    pub parameters: [String; 2],
+    pub correlation: f64,
+}
+
+impl Uncertainty {
+    /// Appends another part's or candidate's fit.
+    pub fn extend(&mut self, other: Uncertainty) {
+        self.std.extend(other.std);
+        self.inseparable.extend(other.inseparable);
+        self.inseparable_pairs.extend(other.inseparable_pairs);
+    }
 }
 
 /// Correlation above which two parameters are said to move as one.
@@ -34,8 +53,8 @@ pub(super) fn uncertainty(
     }
     let Some(inverse) = result.normal_matrix.clone().try_inverse() else {
         return Uncertainty {
-            std: BTreeMap::new(),
             inseparable: vec!["the parameters are not all identifiable from this data (JᵀJ is singular)".to_owned()],
+            ..Uncertainty::default()
         };
     };
     let variance = lm::sum_of_squares(residuals) / (n - p) as f64;
@@ -52,21 +71,34 @@ pub(super) fn uncertainty(
         };
         std.insert(free.knob.name(), sigma);
     }
-    let mut inseparable = Vec::new();
+    let mut inseparable_pairs = Vec::new();
     for i in 0..p {
         for j in i + 1..p {
             let denominator = (covariance[(i, i)] * covariance[(j, j)]).sqrt();
             let correlation = covariance[(i, j)] / denominator;
             if denominator > 0.0 && correlation.abs() > INSEPARABLE_CORRELATION {
-                inseparable.push(format!(
-                    "{} and {} (correlation {correlation:+.3}): the data fixes a combination of them, not each",
-                    knobs[i].knob.name(),
-                    knobs[j].knob.name()
-                ));
+                inseparable_pairs.push(InseparablePair {
+                    parameters: [knobs[i].knob.name(), knobs[j].knob.name()],
+                    correlation,
+                });
             }
         }
     }
-    Uncertainty { std, inseparable }
+    let inseparable = inseparable_pairs
+        .iter()
+        .map(|pair| {
+            let [a, b] = &pair.parameters;
+            format!(
+                "{a} and {b} (correlation {:+.3}): the data fixes a combination of them, not each",
+                pair.correlation
+            )
+        })
+        .collect();
+    Uncertainty {
+        std,
+        inseparable,
+        inseparable_pairs,
+    }
 }
 
 /// The effective number of independent residuals, N / (1 + 2 Σ ρ_k), the
