@@ -55,6 +55,9 @@ def _machine(m: dict, share: float) -> str:
     out.append(f"<p>{m['recordings']} recording(s) from {_day(m['first_seen'])} to {_day(m['last_seen'])}.</p>")
     if m["drifting"]:
         out.append("<ul>" + "".join(f"<li>{html.escape(d['evidence'])}</li>" for d in m["drifting"]) + "</ul>")
+    if m.get("inseparable"):
+        out.append("<p>Fixed only in a combination with another parameter, shown and not named: "
+                   + ", ".join(f"<code>{html.escape(n)}</code>" for n in m["inseparable"]) + ".</p>")
     if m["failures"]:
         out.append("<p class='errors'>Not diagnosed:</p><ul class='errors'>" + "".join(
             f"<li><code>{html.escape(Path(f['recording']).name)}</code>: {html.escape(f['error'])}</li>" for f in m["failures"]) + "</ul>")

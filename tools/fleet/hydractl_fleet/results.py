@@ -31,6 +31,9 @@ SCHEMA = pa.schema(
         ("baseline_params", _PARAMS),
         # Their standard deviations, as the fit's own Jacobian gives them.
         ("baseline_std", _PARAMS),
+        # Those the data fixed only in a combination with another (|correlation|
+        # above 0.95): their own trends are not named.
+        ("baseline_inseparable", pa.list_(pa.string())),
         # Each effect of the catalog the test found significant.
         (
             "effects",

@@ -68,6 +68,7 @@ def empty_row(task: Task, error: str | None = None) -> dict:
         "nrmse": None,
         "baseline_params": None,
         "baseline_std": None,
+        "baseline_inseparable": None,
         "effects": [],
         "verdict": None,
         "warnings": [],
@@ -111,6 +112,7 @@ def diagnose(task: Task, model: str, hydractl: str, threads: int | None = None) 
     row["nrmse"]["overall"] = float(base["validation_nrmse"])
     row["baseline_params"] = {k: float(v) for k, v in base.get("params", {}).items()}
     row["baseline_std"] = {k: float(v) for k, v in base["uncertainty"]["std"].items()}
+    row["baseline_inseparable"] = sorted({p for pair in base["uncertainty"]["inseparable_pairs"] for p in pair["parameters"]})
     row["effects"] = [
         {
             "effect": c["effect"],

@@ -135,11 +135,14 @@ def _machine(machine_id: str, rows: list[dict], share: float) -> dict:
     if good:
         days = _days(good)
         reference = good[-1]["reference_params"] or {}
+        combined = _fixed_only_in_combination(good)
         for name in sorted({k for r in good for k in (r["baseline_params"] or {})}):
             points = [(d, r["baseline_params"][name]) for d, r in zip(days, good) if name in (r["baseline_params"] or {})]
             entry = _series(name, points, reference.get(name), share)
+            if name in combined:
+                entry["inseparable"] = True
             series[name] = entry
-            if entry["drift"]:
+            if entry["drift"] and name not in combined:
                 drifting.append(entry["drift"])
         drifting += _new_effects(good, days, reference)
         fit = _degrading_fit(good, days, share)
@@ -159,9 +162,25 @@ def _machine(machine_id: str, rows: list[dict], share: float) -> dict:
         "last_seen": _iso(rows[-1]["start"]) if rows else None,
         "state": state,
         "drifting": drifting,
+        "inseparable": sorted(n for n, e in series.items() if e.get("inseparable")),
         "series": series,
         "failures": [{"recording": r["recording"], "error": r["error"]} for r in failed],
     }
+
+
+def _fixed_only_in_combination(good: list[dict]) -> set[str]:
+    """The parameters the fits fixed only in a combination with another in
+    most of the recordings that have them: a trend of one of them may be
+    the other's moving (a Stribeck velocity falling as the breakaway
+    torque rises), so it is shown and not named."""
+    have: dict[str, int] = {}
+    combined: dict[str, int] = {}
+    for r in good:
+        for name in r["baseline_params"] or {}:
+            have[name] = have.get(name, 0) + 1
+        for name in r.get("baseline_inseparable") or []:
+            combined[name] = combined.get(name, 0) + 1
+    return {name for name, n in combined.items() if 2 * n > have.get(name, 0)}
 
 
 def _iso(t: dt.datetime) -> str:

@@ -1,6 +1,7 @@
 """The trend's rules on made-up rows: a drift past the share is named, a
 steady scatter is not, a failed fit does not bend the line, an offset is
-never judged by its share, a new effect needs the last recordings."""
+never judged by its share, a parameter the data fixes only in a
+combination is not named, a new effect needs the last recordings."""
 
 from __future__ import annotations
 
@@ -44,6 +45,17 @@ class Trend(unittest.TestCase):
         [named] = drifts(rows)
         self.assertEqual((named["effect"], named["direction"]), ("coulomb_friction", "rising"))
         self.assertAlmostEqual(named["slope"], 3.0, delta=0.1)
+
+    def test_a_parameter_the_data_fixes_only_in_a_combination_is_shown_not_named(self):
+        rows = [row(d, {"coulomb_friction.coulomb": 30.0, "coulomb_friction.stribeck_velocity": 0.05 - 0.003 * d}) for d in range(8)]
+        for r in rows:
+            r["reference_params"]["coulomb_friction.stribeck_velocity"] = 0.05
+        self.assertEqual(len(drifts(rows)), 1)
+        for r in rows[2:]:
+            r["baseline_inseparable"] = ["coulomb_friction.breakaway", "coulomb_friction.stribeck_velocity"]
+        machine = trend.analyse(rows)["machines"][0]
+        self.assertEqual(machine["drifting"], [])
+        self.assertEqual(machine["inseparable"], ["coulomb_friction.stribeck_velocity"])
 
     def test_a_steady_scatter_is_not(self):
         rows = [row(d, {"coulomb_friction.coulomb": 30.0 + 2.0 * (-1) ** d}) for d in range(8)]
