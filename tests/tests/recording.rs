@@ -333,7 +333,7 @@ fn a_killed_recorder_leaves_a_readable_file_and_is_restarted_into_a_new_one() {
     }
     let info = hydractl().args(["mcap", "info"]).arg(&file).output().expect("info");
     assert!(info.status.success());
-    assert!(String::from_utf8_lossy(&info.stdout).contains("cut short"));
+    assert!(String::from_utf8_lossy(&info.stdout).contains("not read whole"));
 
     let second = summarize(&dir.join("run_restart1.mcap")).expect("the restarted recorder's file");
     assert_eq!(second.truncated, None);

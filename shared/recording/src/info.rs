@@ -30,8 +30,8 @@ pub struct RecordingSummary {
     pub bytes: u64,
     pub messages: u64,
     pub duration_s: f64,
-    /// Set when the file was cut short: why, and that it was read up to
-    /// its last whole chunk.
+    /// Set when the file was not read whole: why (see
+    /// [`crate::ReadOutcome::truncated`]).
     pub truncated: Option<String>,
     pub metadata: BTreeMap<String, String>,
     pub channels: Vec<ChannelSummary>,

@@ -30,8 +30,9 @@ pub fn decode<T: Recordable>(message: &RecordedMessage) -> Option<T> {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ReadOutcome {
     pub messages: u64,
-    /// Set when the file stops early (a killed recorder): why, in words.
-    /// Everything up to the last whole chunk was still read.
+    /// Set when the file was not read whole, why in words: it stops early
+    /// (a killed recorder; read up to its last whole chunk), or a chunk is
+    /// corrupt (skipped, named by its time; the chunks after it read).
     pub truncated: Option<String>,
     /// The `hydractl` metadata record: config, software version.
     pub metadata: BTreeMap<String, String>,
@@ -95,13 +96,20 @@ pub fn read_messages_in(
         let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
         check_magic(&map, io)?;
         if let Ok(Some(summary)) = mcap::Summary::read(&map) {
-            return decoder.read_indexed(&map, &summary, window, visit);
+            return decoder.read_indexed(&map, &summary, Some(window), visit);
         }
     }
     // The whole file in one read: faster than a map's page faults when
     // every byte is read anyway.
     let bytes = std::fs::read(path).map_err(io)?;
     check_magic(&bytes, io)?;
+    // A finished recording is read chunk by chunk through its index, so
+    // that a corrupt chunk loses only itself, not everything after it.
+    if let Ok(Some(summary)) = mcap::Summary::read(&bytes) {
+        if !summary.chunk_indexes.is_empty() {
+            return decoder.read_indexed(&bytes, &summary, window, visit);
+        }
+    }
     let records = ChunkFlattener::new_with_options(&bytes, Options::IgnoreEndMagic.into()).map_err(|source| {
         RecordingError::Mcap {
             path: path.to_path_buf(),
@@ -145,6 +153,18 @@ pub fn read_messages_in(
         decoder.outcome.truncated = Some("the file ends without its summary (the recorder did not finish it)".into());
     }
     Ok(decoder.outcome)
+}
+
+/// A chunk that could not be decoded, named by its messages' times in
+/// seconds from the recording's first.
+fn corrupt_chunk(chunk: &mcap::records::ChunkIndex, first_ns: u64, error: &mcap::McapError) -> String {
+    let s = |ns: u64| ns.saturating_sub(first_ns) as f64 * 1e-9;
+    format!(
+        "the chunk of {:.3}–{:.3} s (at byte {}) is corrupt ({error}): skipped",
+        s(chunk.message_start_time),
+        s(chunk.message_end_time),
+        chunk.chunk_start_offset
+    )
 }
 
 fn check_magic(bytes: &[u8], io: impl Fn(std::io::Error) -> RecordingError) -> Result<(), RecordingError> {
@@ -192,13 +212,14 @@ impl<'p> Decoder<'p> {
         Ok(())
     }
 
-    /// The messages of the chunks `window` overlaps, and the metadata, as
-    /// the summary indexes them.
+    /// The messages of the chunks `window` overlaps (all without one), and
+    /// the metadata, as the summary indexes them. A chunk that cannot be
+    /// decoded is skipped and named in [`ReadOutcome::truncated`].
     fn read_indexed(
         mut self,
         bytes: &[u8],
         summary: &mcap::Summary,
-        window: Window,
+        window: Option<Window>,
         mut visit: impl FnMut(&RecordedMessage) -> Result<(), RecordingError>,
     ) -> Result<ReadOutcome, RecordingError> {
         let mcap_error = |source| RecordingError::Mcap {
@@ -222,14 +243,25 @@ impl<'p> Decoder<'p> {
             .map(|c| c.message_start_time)
             .min()
             .unwrap_or(0);
-        let times = window.log_times(first_ns);
+        let times = window.map_or(0..u64::MAX, |w| w.log_times(first_ns));
         let mut chunks: Vec<_> = summary
             .chunk_indexes
             .iter()
             .filter(|c| c.message_end_time >= times.start && c.message_start_time < times.end)
             .collect();
         chunks.sort_by_key(|c| c.chunk_start_offset);
+        let mut corrupt = Vec::new();
         for chunk in chunks {
+            // The chunk's CRC is checked as its end is decoded, after the
+            // garbage before it: so a first pass decodes it whole, and only
+            // a chunk that passes is read.
+            let whole = summary
+                .stream_chunk(bytes, chunk)
+                .and_then(|mut messages| messages.try_for_each(|m| m.map(drop)));
+            if let Err(e) = whole {
+                corrupt.push(corrupt_chunk(chunk, first_ns, &e));
+                continue;
+            }
             for message in summary.stream_chunk(bytes, chunk).map_err(mcap_error)? {
                 let message = message.map_err(mcap_error)?;
                 if times.contains(&message.log_time) {
@@ -242,6 +274,9 @@ impl<'p> Decoder<'p> {
                     )?;
                 }
             }
+        }
+        if !corrupt.is_empty() {
+            self.outcome.truncated = Some(format!("{}; the chunks around read", corrupt.join("; ")));
         }
         Ok(self.outcome)
     }

@@ -284,6 +284,41 @@ fn a_file_cut_short_reads_up_to_its_last_whole_chunk() {
 }
 
 #[test]
+fn a_corrupt_chunk_loses_only_itself_and_is_named_by_its_time() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("run.mcap");
+    let mut w = RecordingWriter::create(&path, RecordOptions::default()).expect("create");
+    let v = w.add_channel(service::VALVE, &ValveSample::KIND).expect("channel");
+    for seq in 0..900 {
+        w.write_sample(v, &valve(seq)).expect("write");
+        // Three chunks of 300 samples.
+        if seq % 300 == 299 {
+            w.flush().expect("flush");
+        }
+    }
+    w.finish().expect("finish");
+    let mut bytes = std::fs::read(&path).expect("read");
+    let summary = mcap::Summary::read(&bytes).expect("summary").expect("a finished file");
+    let mut chunks = summary.chunk_indexes.clone();
+    chunks.sort_by_key(|c| c.chunk_start_offset);
+    assert_eq!(chunks.len(), 3);
+    let middle = (chunks[1].chunk_start_offset + chunks[1].chunk_length / 2) as usize;
+    bytes[middle..middle + 64].fill(0xff);
+    std::fs::write(&path, &bytes).expect("write");
+    let mut seqs = Vec::new();
+    let outcome = read_messages(&path, |m| {
+        if let Some(valve) = decode::<ValveSample>(m) {
+            seqs.push(valve.sensor_seq);
+        }
+        Ok(())
+    })
+    .expect("a corrupt chunk does not stop the reading");
+    assert_eq!(seqs, (0..300).chain(600..900).collect::<Vec<_>>());
+    let why = outcome.truncated.expect("said");
+    assert!(why.contains("corrupt") && why.contains("skipped"), "{why}");
+}
+
+#[test]
 fn bad_files_are_named() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("notes.mcap");

@@ -218,7 +218,7 @@ pub fn mcap(command: McapCommand) -> Result<()> {
                 summary
                     .truncated
                     .as_deref()
-                    .map(|t| format!("\n  cut short: {t}"))
+                    .map(|t| format!("\n  not read whole: {t}"))
                     .unwrap_or_default()
             );
             for (key, value) in &summary.metadata {
