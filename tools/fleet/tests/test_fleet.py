@@ -1,5 +1,5 @@
 """The fleet end to end, as a reliability engineer would run it: three
-machines with plants of their own, six to eight days each, one of them
+machines with plants of their own, five to eight days each, one of them
 recorded by the whole stack on the virtual CAN bus as the vehicle records;
 one whose Coulomb friction grows day by day, one whose valve dead band widens, one
 steady; a truncated recording and a CSV without its angle among them.
@@ -29,10 +29,10 @@ HYDRACTL = os.environ.get("HYDRACTL", str(REPO / "target/release/hydractl"))
 FLEET = [str(Path(sys.executable).parent / "hydractl-fleet")]
 DAYS = 8
 # The CAN machine drives in real time: fewer days keep this test short.
-CAN_DAYS = 6
+CAN_DAYS = 5
 FIRST = dt.date(2026, 11, 3)
 SHARE = 0.2
-SIM_S = "40"
+SIM_S = "30"
 CAN_S = "12"
 
 
