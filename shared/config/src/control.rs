@@ -2,7 +2,7 @@
 
 use hydractl_control::{
     ControlError, FrictionCompensator, FrictionCompensatorParams, HInfinity, HInfinityParams, LimitCycleDetector,
-    LimitCycleParams, Mfc, MfcParams, Pid, PidParams, ValveShaper, ValveShaperParams, VelocityEstimator,
+    LimitCycleParams, LoadModel, Mfc, MfcParams, Pid, PidParams, ValveShaper, ValveShaperParams, VelocityEstimator,
     VelocityEstimatorParams,
 };
 use serde::{Deserialize, Serialize};
@@ -153,10 +153,10 @@ impl ControlConfig {
     /// Builds every controller the structure in charge runs, with its
     /// configured variants, so that a parameter no controller accepts is
     /// found at load, named by its section.
-    pub fn check_controllers(&self, control_period: f64) -> Result<(), (&'static str, ControlError)> {
+    pub fn check_controllers(&self, control_period: f64, load: LoadModel) -> Result<(), (&'static str, ControlError)> {
         let ts = control_period;
         let within = |section: &'static str| move |e: ControlError| (section, e);
-        VelocityEstimator::new(self.velocity_estimator, ts).map_err(within("control.velocity_estimator"))?;
+        VelocityEstimator::new(self.velocity_estimator, load, ts).map_err(within("control.velocity_estimator"))?;
         let outer = self.outer();
         FrictionCompensator::new(outer.friction.clone()).map_err(within(self.outer_section(OuterPart::Friction)))?;
         match outer.variant {

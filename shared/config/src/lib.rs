@@ -21,7 +21,7 @@ mod validate;
 use std::path::{Path, PathBuf};
 
 use hydractl_can::profile::CanConfig;
-use hydractl_control::Trajectory;
+use hydractl_control::{LoadModel, Trajectory};
 use hydractl_plant::{EffectsConfig, PlantParams, SensorParams};
 use serde::{Deserialize, Serialize};
 
@@ -176,6 +176,15 @@ pub struct StuckSpool {
 const MAX_BASE_DEPTH: usize = 4;
 
 impl Config {
+    /// The load's model the loop's observer runs: the `[plant]` the config
+    /// takes the machine to be.
+    pub fn load_model(&self) -> LoadModel {
+        LoadModel {
+            inertia: self.plant.inertia,
+            viscous_friction: self.plant.viscous_friction,
+        }
+    }
+
     /// Loads a config file. A file may start from another with
     /// `base = "OTHER.toml"` (relative to itself) and give only what
     /// differs: its tables are merged over the base's, key by key.
@@ -530,6 +539,22 @@ mod tests {
         let text = err.to_string();
         assert!(
             text.contains("x.toml") && text.contains("[control.valve_guard]") && text.contains("max_age_periods"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn an_observer_the_loop_cannot_run_is_named_at_load() {
+        let observer = DEFAULT_SIM_TOML.replace("method = \"differentiator\"", "method = \"observer\"");
+        Config::parse(&observer, Path::new("x.toml")).expect("the observer at 80 rad/s");
+        let bad = observer.replace("observer_bandwidth_rad_s = 80.0", "observer_bandwidth_rad_s = 1000.0");
+        let text = Config::parse(&bad, Path::new("x.toml"))
+            .expect_err("faster than a tenth of the loop")
+            .to_string();
+        assert!(
+            text.contains("x.toml")
+                && text.contains("[control.velocity_estimator]")
+                && text.contains("observer_bandwidth_rad_s"),
             "{text}"
         );
     }

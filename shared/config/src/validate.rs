@@ -296,7 +296,7 @@ impl Config {
             });
         }
         self.control
-            .check_controllers(self.timing.control_period())
+            .check_controllers(self.timing.control_period(), self.load_model())
             .map_err(|(section, source)| ConfigError::Control {
                 path: path.to_owned(),
                 section,

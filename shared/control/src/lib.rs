@@ -32,7 +32,7 @@ pub use pid::{Pid, PidParams};
 pub use trajectory::{Reference, Trajectory};
 pub use transfer::FadingTransfer;
 pub use valve::{ValveShaper, ValveShaperParams};
-pub use velocity::{VelocityEstimator, VelocityEstimatorParams};
+pub use velocity::{LoadModel, VelocityEstimator, VelocityEstimatorParams, VelocityMethod};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ControlError {

@@ -91,12 +91,20 @@ impl Mfc {
     }
 
     /// One period: the output for the reference and the measured angle.
-    pub fn update(&mut self, reference: f64, angle: f64, feedforward: f64) -> f64 {
+    /// With a measured `velocity`, PID_A's derivative is the model's
+    /// velocity less it; without, the angle's error differenced.
+    pub fn update(&mut self, reference: f64, angle: f64, velocity: Option<f64>, feedforward: f64) -> f64 {
         if !(reference.is_finite() && angle.is_finite() && feedforward.is_finite()) {
             return self.output;
         }
         let u_b = self.pid_b.update(reference - self.model_angle, 0.0);
-        let u_a = self.pid_a.update(self.model_angle - angle, 0.0);
+        let error_a = self.model_angle - angle;
+        let u_a = match velocity {
+            Some(velocity) => self
+                .pid_a
+                .update_with_rate(error_a, self.model_velocity - velocity, 0.0),
+            None => self.pid_a.update(error_a, 0.0),
+        };
         // The forward model, semi-implicit Euler: Ĵ θ̈ = u_B − b̂ θ̇.
         let p = &self.params;
         self.model_velocity += self.ts * (u_b - p.b_hat * self.model_velocity) / p.j_hat;
@@ -196,12 +204,12 @@ mod tests {
         let mut c = Mfc::new(params(), 0.001).expect("valid");
         // k=0: e_B = 0.1, u_B = 10*0.1 = 1.0 (no derivative on first sample);
         // e_A = 0 - 0 = 0; then model: ω = 0.001*(1.0)/0.05 = 0.02, θ = 2e-5.
-        let u = c.update(0.1, 0.0, 0.0);
+        let u = c.update(0.1, 0.0, None, 0.0);
         assert!((u - 1.0).abs() < 1e-12);
         assert!((c.model_angle() - 2e-5).abs() < 1e-15);
         // k=1: e_B = 0.1 - 2e-5; u_B = 10 e_B + 0.5 (−2e-5/0.001) = 0.9998 − 0.01.
         // e_A = 2e-5: u_A = 3*2e-5 = 6e-5.
-        let u = c.update(0.1, 0.0, 0.0);
+        let u = c.update(0.1, 0.0, None, 0.0);
         assert!((u - (0.9998 - 0.01 + 6e-5)).abs() < 1e-9, "{u}");
     }
 
@@ -212,7 +220,7 @@ mod tests {
         let (mut angle, mut velocity) = (0.0, 0.0);
         for k in 0..3000 {
             let r = 0.2 * (2.0 * k as f64 * 0.001).sin();
-            let u = c.update(r, angle, 0.0);
+            let u = c.update(r, angle, None, 0.0);
             // The same discretization as the model: the plant stays on it.
             velocity += 0.001 * (u - p.b_hat * velocity) / p.j_hat;
             angle += 0.001 * velocity;
@@ -227,15 +235,15 @@ mod tests {
         let reference = |k: usize| 0.01 * k as f64 * 0.001;
         let mut own = 0.0;
         for k in 0..200 {
-            own = c.update(reference(k), c.model_angle(), 0.0);
+            own = c.update(reference(k), c.model_angle(), None, 0.0);
         }
         let model = c.model_angle();
         c.track(own + 0.1);
         assert_eq!(c.model_angle(), model, "the model runs on untouched");
         let mut free = c.clone();
         free.track(own);
-        let shifted = c.update(reference(200), model, 0.0);
-        let unshifted = free.update(reference(200), model, 0.0);
+        let shifted = c.update(reference(200), model, None, 0.0);
+        let unshifted = free.update(reference(200), model, None, 0.0);
         assert!((shifted - unshifted - 0.1).abs() < 1e-9, "{shifted} {unshifted}");
     }
 
@@ -248,7 +256,7 @@ mod tests {
         let angle = |k: usize| 0.9 * reference(k);
         let mut own = 0.0;
         for k in 0..200 {
-            own = c.update(reference(k), angle(k), 0.0);
+            own = c.update(reference(k), angle(k), None, 0.0);
         }
         let mut never_stood_by = c.clone();
         never_stood_by.track(own);
@@ -256,8 +264,8 @@ mod tests {
         let periods = |seconds: f64| (seconds / ts).round() as usize;
         let mut gaps = Vec::new();
         for k in 200..200 + periods(10.0 * TRANSFER_FADE_S) {
-            let handed = c.update(reference(k), angle(k), 0.0);
-            let free = never_stood_by.update(reference(k), angle(k), 0.0);
+            let handed = c.update(reference(k), angle(k), None, 0.0);
+            let free = never_stood_by.update(reference(k), angle(k), None, 0.0);
             gaps.push(handed - free);
             assert_eq!(
                 c.model_angle(),
@@ -276,13 +284,30 @@ mod tests {
     fn initialize_output_is_bumpless() {
         let mut c = Mfc::new(params(), 0.001).expect("valid");
         assert!(c.initialize_output(0.42, 0.3, 0.25, 0.0, 0.02));
-        assert!((c.update(0.3, 0.25, 0.02) - 0.42).abs() < 1e-12);
+        assert!((c.update(0.3, 0.25, None, 0.02) - 0.42).abs() < 1e-12);
         // On a moving plant the next output moves on from it, without the
         // derivative kick a zero remembered error would give.
         let (velocity, ts) = (0.5, 0.001);
         let mut c = Mfc::new(params(), ts).expect("valid");
         assert!(c.initialize_output(0.42, 0.3, 0.25, velocity, 0.02));
-        let next = c.update(0.3 + velocity * ts, 0.25 + velocity * ts, 0.02);
+        let next = c.update(0.3 + velocity * ts, 0.25 + velocity * ts, None, 0.02);
         assert!((next - 0.42).abs() < 1e-3, "{next}");
+    }
+
+    #[test]
+    fn an_encoder_count_moves_the_output_by_the_proportional_part_alone() {
+        // PID_A with a derivative and a measured velocity: the angle
+        // stepping one count at a steady velocity is no motion to it.
+        let mut p = params();
+        p.pid_a.kd = 0.8;
+        let mut c = Mfc::new(p, 0.001).expect("valid");
+        let count = std::f64::consts::TAU / 4000.0;
+        let still = c.update(0.0, 0.0, Some(0.0), 0.0);
+        let stepped = c.update(0.0, count, Some(0.0), 0.0);
+        let proportional = p.pid_a.kp * count;
+        assert!(
+            ((still - stepped) - proportional).abs() < 1e-3 * proportional,
+            "{still} {stepped}"
+        );
     }
 }

@@ -45,7 +45,7 @@ impl PidParams {
     }
 }
 
-/// A discrete PID: derivative of the error through a first-order filter,
+/// A discrete PID: derivative of the error (or a given rate) through a first-order filter,
 /// output limits with anti-windup, and a feed-forward input that counts
 /// towards saturation. A non-finite input holds the last output and leaves
 /// the state untouched, so one bad sample cannot poison the integrator.
@@ -91,12 +91,20 @@ impl Pid {
     /// One period: the output for `error`, with `feedforward` added before
     /// the limits.
     pub fn update(&mut self, error: f64, feedforward: f64) -> f64 {
-        if !(error.is_finite() && feedforward.is_finite()) {
+        let previous = self.previous_error.unwrap_or(error);
+        self.update_with_rate(error, (error - previous) / self.ts, feedforward)
+    }
+
+    /// One period with the error's rate given rather than differenced: a
+    /// loop that has an estimate of the velocity puts it here, so that the
+    /// derivative is not the encoder's counts differenced once more. The
+    /// rate passes the derivative's filter all the same.
+    pub fn update_with_rate(&mut self, error: f64, error_rate: f64, feedforward: f64) -> f64 {
+        if !(error.is_finite() && error_rate.is_finite() && feedforward.is_finite()) {
             return self.output;
         }
         let p = &self.params;
-        let previous = self.previous_error.unwrap_or(error);
-        let raw_derivative = (error - previous) / self.ts;
+        let raw_derivative = error_rate;
         let blend = self.ts / (p.derivative_filter_s + self.ts);
         self.derivative += blend * (raw_derivative - self.derivative);
         self.previous_error = Some(error);

@@ -1,8 +1,9 @@
 //! No NaN or infinity out of any controller for any bounded input.
 
 use hydractl_control::{
-    FrictionCompensator, FrictionCompensatorParams, HInfinity, HInfinityParams, LoadFeedforward, Mfc, MfcParams, Pid,
-    PidParams, StaticMap, ValveShaper, ValveShaperParams, VelocityEstimator, VelocityEstimatorParams,
+    FrictionCompensator, FrictionCompensatorParams, HInfinity, HInfinityParams, LoadFeedforward, LoadModel, Mfc,
+    MfcParams, Pid, PidParams, StaticMap, ValveShaper, ValveShaperParams, VelocityEstimator, VelocityEstimatorParams,
+    VelocityMethod,
 };
 use proptest::prelude::*;
 
@@ -33,11 +34,14 @@ proptest! {
             load: LoadFeedforward { coulomb: 40.0, gravity_amplitude: 200.0, ..LoadFeedforward::default() },
         }).expect("valid");
         let mut valve = ValveShaper::new(ValveShaperParams { deadzone_width: 0.1, ..ValveShaperParams::default() }, ts).expect("valid");
-        let mut velocity = VelocityEstimator::new(VelocityEstimatorParams::default(), ts).expect("valid");
+        let load = LoadModel { inertia: 20.0, viscous_friction: 17.0 };
+        let mut velocity = VelocityEstimator::new(VelocityEstimatorParams::default(), load, ts).expect("valid");
+        let observer = VelocityEstimatorParams { method: VelocityMethod::Observer, ..VelocityEstimatorParams::default() };
+        let mut observed = VelocityEstimator::new(observer, load, ts).expect("valid");
         for (a, b) in inputs {
             let u = pid.update(a, b * 1e-3);
             prop_assert!(u.is_finite() && (-1.0..=1.0).contains(&u));
-            let u = mfc.update(a, b, 0.0);
+            let u = mfc.update(a, b, Some(a - b), 0.0);
             prop_assert!(u.is_finite() && (-1.0..=1.0).contains(&u));
             let u = hinf.update(a);
             prop_assert!(u.is_finite() && (-1.0..=1.0).contains(&u));
@@ -47,7 +51,8 @@ proptest! {
             prop_assert!(load.is_finite() && load.abs() <= 240.0);
             let v = valve.update(a);
             prop_assert!(v.is_finite() && (-1.0..=1.0).contains(&v));
-            prop_assert!(velocity.update(a).is_finite());
+            prop_assert!(velocity.update(a, b).is_finite());
+            prop_assert!(observed.update(a, b * 1e3).is_finite());
         }
     }
 }

@@ -1,7 +1,7 @@
 //! The position stage: the reference trajectory and the outer loop.
 
 use hydractl_config::{Config, OuterPart, PositionVariant, Structure};
-use hydractl_control::{Mfc, Pid, Reference, Trajectory};
+use hydractl_control::{Mfc, Pid, Reference, Trajectory, VelocityMethod};
 
 use crate::{in_section, FrictionOutput, SensorEstimate, StackError};
 
@@ -31,6 +31,9 @@ pub struct PositionStage {
     trajectory: Trajectory,
     outer: OuterLoop,
     started: bool,
+    /// The derivative from the sensor's velocity, not the angle's error
+    /// differenced: only the observer's velocity is worth more than that.
+    derivative_from_velocity: bool,
 }
 
 impl PositionStage {
@@ -55,6 +58,7 @@ impl PositionStage {
             trajectory: config.trajectory.clone(),
             outer,
             started: false,
+            derivative_from_velocity: config.control.velocity_estimator.method == VelocityMethod::Observer,
         })
     }
 
@@ -87,8 +91,14 @@ impl PositionStage {
             };
         }
         let output = match &mut self.outer {
+            OuterLoop::Pid(pid) if self.derivative_from_velocity => {
+                pid.update_with_rate(error, reference.velocity - sensor.velocity, friction)
+            }
             OuterLoop::Pid(pid) => pid.update(error, friction),
-            OuterLoop::Mfc(mfc) => mfc.update(reference.angle, sensor.angle, friction),
+            OuterLoop::Mfc(mfc) => {
+                let velocity = self.derivative_from_velocity.then_some(sensor.velocity);
+                mfc.update(reference.angle, sensor.angle, velocity, friction)
+            }
         };
         PositionOutput { reference, output }
     }

@@ -28,19 +28,24 @@ pub struct SensorStage {
 impl SensorStage {
     pub fn new(config: &Config) -> Result<Self, StackError> {
         Ok(Self {
-            velocity: VelocityEstimator::new(config.control.velocity_estimator, config.timing.control_period())
-                .map_err(in_section("control.velocity_estimator"))?,
+            velocity: VelocityEstimator::new(
+                config.control.velocity_estimator,
+                config.load_model(),
+                config.timing.control_period(),
+            )
+            .map_err(in_section("control.velocity_estimator"))?,
             displacement: config.plant.displacement,
         })
     }
 
     pub fn process(&mut self, raw: &RawReading) -> SensorEstimate {
+        let torque = self.displacement * (raw.p_a - raw.p_b);
         SensorEstimate {
             angle: raw.angle,
-            velocity: self.velocity.update(raw.angle),
+            velocity: self.velocity.update(raw.angle, torque),
             p_a: raw.p_a,
             p_b: raw.p_b,
-            torque: self.displacement * (raw.p_a - raw.p_b),
+            torque,
         }
     }
 }
