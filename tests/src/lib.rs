@@ -283,6 +283,22 @@ pub fn run_to_end(scope: &RunScope, args: &[&str], timeout: Duration) -> Output 
     child.wait_with_output().expect("output")
 }
 
+/// Asks `probe` every `every` until it answers, for at most `timeout`:
+/// its first answer, or `None` when time ran out. A probe that waits on its
+/// own (a status read with a timeout) can be asked with `Duration::ZERO`.
+pub fn wait_for<T>(timeout: Duration, every: Duration, mut probe: impl FnMut() -> Option<T>) -> Option<T> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(answer) = probe() {
+            return Some(answer);
+        }
+        if Instant::now() >= deadline {
+            return None;
+        }
+        std::thread::sleep(every);
+    }
+}
+
 pub fn wait_exit(child: &mut Child, timeout: Duration) -> std::process::ExitStatus {
     let deadline = Instant::now() + timeout;
     loop {

@@ -5,7 +5,7 @@
 //! dumped back, frame for frame.
 
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use hydractl_bus::PREFIX_ENV;
 use hydractl_can::candump;
@@ -34,11 +34,18 @@ impl Drop for Stopped {
 }
 
 fn wait_for_node(scope: &hydractl_bus::RunScope, name: &str) {
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while !scope.live_node_names().expect("nodes").iter().any(|n| n == name) {
-        assert!(Instant::now() < deadline, "{name} never came up");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let up = || {
+        scope
+            .live_node_names()
+            .expect("nodes")
+            .iter()
+            .any(|n| n == name)
+            .then_some(())
+    };
+    assert!(
+        wait_for(Duration::from_secs(10), Duration::from_millis(20), up).is_some(),
+        "{name} never came up"
+    );
 }
 
 #[test]

@@ -57,14 +57,12 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
         let name = PROCESSES[which];
         // The current process, not the one killed last time (the status
         // is published every 100 ms).
-        let deadline = Instant::now() + Duration::from_secs(3);
-        let pid = loop {
-            let pid = observer.pid_of(name, Duration::from_millis(50));
-            if let Some(pid) = pid.filter(|&p| p != last_pid[which]) {
-                break pid;
-            }
-            assert!(Instant::now() < deadline, "kill {k}: {name} is not back");
-        };
+        let pid = wait_for(Duration::from_secs(3), Duration::ZERO, || {
+            observer
+                .pid_of(name, Duration::from_millis(50))
+                .filter(|&p| p != last_pid[which])
+        })
+        .unwrap_or_else(|| panic!("kill {k}: {name} is not back"));
         std::thread::sleep(Duration::from_millis(rng.below(40)));
         observer.drain_valve();
         signal(pid, Signal::SIGKILL);

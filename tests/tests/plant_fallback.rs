@@ -107,11 +107,11 @@ fn a_lost_machine_is_replaced_by_the_simulated_plant_from_its_last_state() {
     assert_eq!(process(&before, "plant")["variant"], "standby");
     assert_eq!(process(&before, "machine")["healthy"], true);
     // The stand-in's bus goes silent 2 s after it started.
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while status(&scope)["plant"] != "simulation" {
-        assert!(std::time::Instant::now() < deadline, "no fallback");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let fell_back = || (status(&scope)["plant"] == "simulation").then_some(());
+    assert!(
+        wait_for(Duration::from_secs(10), Duration::from_millis(50), fell_back).is_some(),
+        "no fallback"
+    );
     observer.drain_valve();
     assert!(observer.wait_healthy(1000, Duration::from_secs(5)), "the loop goes on");
     let after = status(&scope);

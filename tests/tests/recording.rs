@@ -302,13 +302,11 @@ fn a_killed_recorder_leaves_a_readable_file_and_is_restarted_into_a_new_one() {
         .pid_of("recorder", Duration::from_secs(2))
         .expect("recorder pid");
     signal(pid, Signal::SIGKILL);
-    let deadline = Instant::now() + Duration::from_secs(5);
-    let mut restarted = None;
-    while restarted.is_none() && Instant::now() < deadline {
-        restarted = observer
+    let restarted = wait_for(Duration::from_secs(5), Duration::ZERO, || {
+        observer
             .pid_of("recorder", Duration::from_millis(200))
-            .filter(|&p| p != pid);
-    }
+            .filter(|&p| p != pid)
+    });
     assert!(restarted.is_some(), "the recorder is restarted");
     std::thread::sleep(Duration::from_millis(1500));
     signal(run.id(), Signal::SIGTERM);

@@ -6,7 +6,7 @@
 //! the unchanged machine it raises nothing.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
@@ -47,11 +47,10 @@ fn a_valve_whose_overlap_opens_is_detected_and_named_a_deadzone() {
     // Named, the drift's model is written; the run goes on a few seconds
     // more, long enough for a second naming to show, and is stopped as a
     // person would.
-    let deadline = Instant::now() + Duration::from_secs(50);
-    while !learned.exists() && Instant::now() < deadline {
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    assert!(learned.exists(), "the drift is named while the run goes on");
+    let named = wait_for(Duration::from_secs(50), Duration::from_millis(100), || {
+        learned.exists().then_some(())
+    });
+    assert!(named.is_some(), "the drift is named while the run goes on");
     std::thread::sleep(Duration::from_secs(5));
     signal(run.0.id(), Signal::SIGINT);
     assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());

@@ -297,13 +297,11 @@ fn a_stopped_controller_is_found_hung_killed_and_restarted() {
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     let pid = observer.pid_of("torque", Duration::from_secs(2)).expect("torque");
     signal(pid, Signal::SIGSTOP);
-    let deadline = std::time::Instant::now() + Duration::from_secs(3);
-    let mut restarted = None;
-    while restarted.is_none() && std::time::Instant::now() < deadline {
-        restarted = observer
+    let restarted = wait_for(Duration::from_secs(3), Duration::ZERO, || {
+        observer
             .pid_of("torque", Duration::from_millis(100))
-            .filter(|&p| p != pid);
-    }
+            .filter(|&p| p != pid)
+    });
     assert!(restarted.is_some(), "a new torque process");
     observer.drain_valve();
     assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop resumes");
