@@ -46,30 +46,36 @@ pub enum RecordingError {
         topic: String,
         schema: String,
     },
-    #[error("{path}: message {index} on `{topic}` has {got} bytes after the CDR header, `{schema}` needs {want}")]
+    #[error("{path}: {at} has {got} bytes after the CDR header, `{schema}` needs {want}")]
     BadSize {
         path: PathBuf,
-        topic: String,
+        at: Box<MessageAt>,
         schema: String,
-        index: u64,
         got: usize,
         want: usize,
     },
+    /// A sample that could not be encoded for writing.
     #[error("{path}: `{topic}`: {source}")]
     Cdr {
         path: PathBuf,
         topic: String,
         source: hydractl_samples::cdr::CdrError,
     },
-    #[error("{path}: message {index} on `{topic}` is not a can_msgs/msg/Frame: {reason}")]
+    /// A recorded message that could not be decoded.
+    #[error("{path}: {at}: {source}")]
+    CdrAt {
+        path: PathBuf,
+        at: Box<MessageAt>,
+        source: hydractl_samples::cdr::CdrError,
+    },
+    #[error("{path}: {at} is not a can_msgs/msg/Frame: {reason}")]
     BadFrame {
         path: PathBuf,
-        topic: String,
-        index: u64,
+        at: Box<MessageAt>,
         reason: String,
     },
-    #[error("{path}: message {index} on `{topic}` does not start with the little-endian CDR header")]
-    BadHeader { path: PathBuf, topic: String, index: u64 },
+    #[error("{path}: {at} does not start with the little-endian CDR header")]
+    BadHeader { path: PathBuf, at: Box<MessageAt> },
     #[error("{path}: no channel `{topic}`; the recording has: {have}")]
     MissingChannel { path: PathBuf, topic: String, have: String },
     #[error("{path}: no sample of `{topic}` matches a sensor reading; nothing to export")]
@@ -89,4 +95,25 @@ pub enum RecordingError {
     },
     #[error("{path}: cannot write CSV: {source}")]
     Csv { path: PathBuf, source: csv::Error },
+}
+
+/// Where a message that could not be read sits, in the terms `mcap cat`
+/// and a reader of the file use: its channel, its place among that
+/// channel's messages, its log time and its MCAP sequence.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MessageAt {
+    pub topic: String,
+    pub index: u64,
+    pub log_time_ns: u64,
+    pub sequence: u32,
+}
+
+impl std::fmt::Display for MessageAt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "message {} on `{}` (log time {} ns, sequence {})",
+            self.index, self.topic, self.log_time_ns, self.sequence
+        )
+    }
 }

@@ -303,13 +303,18 @@ impl<'p> Decoder<'p> {
                     .join(", "),
             });
         };
-        let index = channel.count;
-        channel.count += 1;
+        let at = || {
+            Box::new(crate::MessageAt {
+                topic: channel.topic.clone(),
+                index: channel.count,
+                log_time_ns,
+                sequence: mcap_sequence,
+            })
+        };
         let Some(payload) = data.strip_prefix(&CDR_HEADER[..]) else {
             return Err(RecordingError::BadHeader {
                 path: path.to_path_buf(),
-                topic: channel.topic.clone(),
-                index,
+                at: at(),
             });
         };
         // A sample with text: back to its memory.
@@ -317,9 +322,9 @@ impl<'p> Decoder<'p> {
             payload
         } else {
             hydractl_samples::cdr::from_cdr(channel.kind, payload, &mut self.memory).map_err(|source| {
-                RecordingError::Cdr {
+                RecordingError::CdrAt {
                     path: path.to_path_buf(),
-                    topic: format!("{} message {index}", channel.topic),
+                    at: at(),
                     source,
                 }
             })?;
@@ -328,20 +333,20 @@ impl<'p> Decoder<'p> {
         if crate::is_can_frame(channel.kind) {
             crate::decode_frame(payload).map_err(|reason| RecordingError::BadFrame {
                 path: path.to_path_buf(),
-                topic: channel.topic.clone(),
-                index,
+                at: at(),
                 reason,
             })?;
         } else if payload.len() != channel.kind.size {
             return Err(RecordingError::BadSize {
                 path: path.to_path_buf(),
-                topic: channel.topic.clone(),
+                at: at(),
                 schema: channel.kind.schema_name.to_owned(),
-                index,
                 got: payload.len(),
                 want: channel.kind.size,
             });
         }
+        let index = channel.count;
+        channel.count += 1;
         self.outcome.messages += 1;
         visit(&RecordedMessage {
             topic: &channel.topic,

@@ -396,3 +396,44 @@ fn a_ring_deletes_the_oldest_parts_earlier_runs_first_and_keeps_within_its_limit
         .expect("valve");
     assert_eq!(valve.last_seq, 19_999);
 }
+
+#[test]
+fn a_message_that_cannot_be_read_is_named_by_channel_time_and_sequence() {
+    use hydractl_recording::{MESSAGE_ENCODING, SCHEMA_ENCODING};
+    use hydractl_samples::CDR_HEADER;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("bad.mcap");
+    // Written apart from RecordingWriter, which refuses such a payload: a
+    // sensor sample cut short, after a whole one.
+    let file = std::io::BufWriter::new(std::fs::File::create(&path).expect("create"));
+    let mut writer = mcap::Writer::new(file).expect("writer");
+    let kind = &SensorSample::KIND;
+    let schema = writer
+        .add_schema(kind.schema_name, SCHEMA_ENCODING, kind.ros2msg.as_bytes())
+        .expect("schema");
+    let channel = writer
+        .add_channel(schema, service::SENSOR, MESSAGE_ENCODING, &BTreeMap::new())
+        .expect("channel");
+    let whole = [&CDR_HEADER[..], bytemuck::bytes_of(&sensor(6))].concat();
+    let cut = &whole[..whole.len() - 8];
+    for (sequence, log_time, data) in [(6, 1_006_000_000, &whole[..]), (7, 1_007_000_000, cut)] {
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence,
+            log_time,
+            publish_time: log_time,
+        };
+        writer.write_to_known_channel(&header, data).expect("write");
+    }
+    writer.finish().expect("finish");
+
+    let err = read_messages(&path, |_| Ok(())).expect_err("a cut sample").to_string();
+    for part in [
+        "bad.mcap",
+        "message 1 on `hydractl/sensor`",
+        "log time 1007000000 ns",
+        "sequence 7",
+    ] {
+        assert!(err.contains(part), "{part}: {err}");
+    }
+}
