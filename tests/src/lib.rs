@@ -40,6 +40,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+pub use hydractl_samples::service::{PIPELINE_PROCESSES, PIPELINE_SERVICES};
 use hydractl_samples::{
     name_str, service, FrictionSample, PlantReading, PositionSample, Recordable, SensorSample, SupervisorStatus,
     TorqueSample, ValveSample,
@@ -483,16 +484,6 @@ pub fn process<'a>(status: &'a serde_json::Value, name: &str) -> &'a serde_json:
 
 /// Takes the next waiting sample's sequence number.
 type NextSeq = Box<dyn Fn() -> Option<u64>>;
-
-/// The loop's services, in pipeline order.
-pub const PIPELINE_SERVICES: [&str; 6] = [
-    service::PLANT_READING,
-    service::SENSOR,
-    service::FRICTION,
-    service::POSITION,
-    service::TORQUE,
-    service::VALVE,
-];
 
 /// The sequence numbers an independent subscriber sees on each pipeline
 /// service: what was published, to compare a recording with.

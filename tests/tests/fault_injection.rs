@@ -12,7 +12,6 @@ use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
 
 const KILLS: usize = 100;
-const PROCESSES: [&str; 6] = ["plant", "sensor", "friction", "position", "torque", "valve"];
 
 /// A small seeded generator: the same moments on every run.
 struct Lcg(u64);
@@ -47,14 +46,14 @@ fn a_hundred_kills_are_each_detected_made_safe_and_restarted() {
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     let mut rng = Lcg(2026);
     let mut killed: Vec<(&str, u32)> = Vec::new();
-    let mut last_pid = [0u32; PROCESSES.len()];
+    let mut last_pid = [0u32; PIPELINE_PROCESSES.len()];
     for k in 0..KILLS {
-        let which = if k < 2 * PROCESSES.len() {
-            k % PROCESSES.len()
+        let which = if k < 2 * PIPELINE_PROCESSES.len() {
+            k % PIPELINE_PROCESSES.len()
         } else {
-            rng.below(PROCESSES.len() as u64) as usize
+            rng.below(PIPELINE_PROCESSES.len() as u64) as usize
         };
-        let name = PROCESSES[which];
+        let name = PIPELINE_PROCESSES[which];
         // The current process, not the one killed last time (the status
         // is published every 100 ms).
         let pid = wait_for(Duration::from_secs(3), Duration::ZERO, || {

@@ -22,8 +22,7 @@ fn a_fifteen_second_run_takes_no_page_fault_on_the_loop() {
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sim.toml");
     let summary = run_config_for(&scope, &dir, &config, "15");
     let processes = summary["processes"].as_array().expect("processes");
-    let loop_processes = ["plant", "sensor", "friction", "position", "torque", "valve"];
-    for name in loop_processes {
+    for name in PIPELINE_PROCESSES {
         let p = processes
             .iter()
             .find(|p| p["name"] == name)

@@ -12,39 +12,23 @@ use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
 /// The processes of the loop, in pipeline order, with the service each
-/// publishes (its heartbeat) and the one it consumes.
-pub const PIPELINE: [(&str, &str, &str); 6] = [
-    (
-        "plant",
-        hydractl_samples::service::PLANT_READING,
-        hydractl_samples::service::VALVE,
-    ),
-    (
-        "sensor",
-        hydractl_samples::service::SENSOR,
-        hydractl_samples::service::PLANT_READING,
-    ),
-    (
-        "friction",
-        hydractl_samples::service::FRICTION,
-        hydractl_samples::service::SENSOR,
-    ),
-    (
-        "position",
-        hydractl_samples::service::POSITION,
-        hydractl_samples::service::FRICTION,
-    ),
-    (
-        "torque",
-        hydractl_samples::service::TORQUE,
-        hydractl_samples::service::POSITION,
-    ),
-    (
-        "valve",
-        hydractl_samples::service::VALVE,
-        hydractl_samples::service::TORQUE,
-    ),
-];
+/// publishes (its heartbeat) and the one it consumes: the one before its
+/// own, and for the plant the valve's.
+pub const PIPELINE: [(&str, &str, &str); 6] = {
+    use hydractl_samples::service::{PIPELINE_PROCESSES, PIPELINE_SERVICES};
+    let n = PIPELINE_PROCESSES.len();
+    let mut pipeline = [("", "", ""); 6];
+    let mut i = 0;
+    while i < n {
+        pipeline[i] = (
+            PIPELINE_PROCESSES[i],
+            PIPELINE_SERVICES[i],
+            PIPELINE_SERVICES[(i + n - 1) % n],
+        );
+        i += 1;
+    }
+    pipeline
+};
 
 /// Why a child is down.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -293,6 +277,22 @@ impl Drop for Supervised {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_process_of_the_pipeline_consumes_what_the_one_before_publishes() {
+        use hydractl_samples::service::{FRICTION, PLANT_READING, POSITION, SENSOR, TORQUE, VALVE};
+        assert_eq!(
+            PIPELINE,
+            [
+                ("plant", PLANT_READING, VALVE),
+                ("sensor", SENSOR, PLANT_READING),
+                ("friction", FRICTION, SENSOR),
+                ("position", POSITION, FRICTION),
+                ("torque", TORQUE, POSITION),
+                ("valve", VALVE, TORQUE),
+            ]
+        );
+    }
 
     #[test]
     fn backoff_doubles_up_to_the_limit_and_resets_when_healthy() {

@@ -9,7 +9,7 @@
 //! run left it), `Outlet` (publish, then wake the readers), `Reader` (polled)
 //! and `Inlet` (reader + what to sleep on); `Doorbell`, the loop's wake-up: a
 //! futex in the run's shared memory per loop service
-//! (`service::DOORBELL_SERVICES`), rung after each sample, waited on with a
+//! (`service::PIPELINE_SERVICES`), rung after each sample, waited on with a
 //! timeout (every other service wakes its listeners with iceoryx2's events,
 //! which `ppoll` sees beside sockets), commands over request-response
 //! (`CommandServer`, `CommandClient`), `run_loop` (`ppoll` over the inputs'

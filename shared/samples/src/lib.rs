@@ -26,19 +26,26 @@ mod schema;
 pub use schema::{visit_kind, KindVisitor, Recordable, SampleKind, CDR_HEADER, KINDS, STACK_SERVICES};
 
 /// Service names. A sample of the loop's own services
-/// ([`service::DOORBELL_SERVICES`]) rings the service's doorbell, a futex in
+/// ([`service::PIPELINE_SERVICES`]) rings the service's doorbell, a futex in
 /// the run's shared memory, for the stage that waits for it; every other
 /// publish-subscribe service has an event service of the same name,
 /// notified after every sample.
 pub mod service {
+    /// The loop's processes in pipeline order: the plant, then the stages.
+    /// Each publishes the service at its place in [`PIPELINE_SERVICES`].
+    pub const PIPELINE_PROCESSES: [&str; 6] = ["plant", "sensor", "friction", "position", "torque", "valve"];
+
+    /// The loop's stages: every process of the pipeline but the plant.
+    pub const STAGES: &[&str] = PIPELINE_PROCESSES.split_at(1).1;
+
     /// The loop's services, from the plant's reading to the valve's state:
     /// the stage waiting for each sleeps on its doorbell.
-    pub const DOORBELL_SERVICES: [&str; 6] = [PLANT_READING, SENSOR, FRICTION, POSITION, TORQUE, VALVE];
+    pub const PIPELINE_SERVICES: [&str; 6] = [PLANT_READING, SENSOR, FRICTION, POSITION, TORQUE, VALVE];
 
     /// Whether a sample of `name` wakes its reader by a doorbell (else by
     /// an iceoryx2 event).
     pub fn rings_doorbell(name: &str) -> bool {
-        DOORBELL_SERVICES.contains(&name)
+        PIPELINE_SERVICES.contains(&name)
     }
 
     /// The plant's raw readings: the simulated sensor bus.

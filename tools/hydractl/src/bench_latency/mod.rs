@@ -27,7 +27,7 @@ mod stage;
 use stage::Stage;
 pub use stage::{stage, StageArgs};
 
-pub(crate) const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
+pub(crate) use hydractl_samples::service::STAGES;
 /// `iceoryx2` is the live stack's: samples in shared memory, each hop woken
 /// by its service's doorbell (a futex); `iceoryx2-events` wakes each hop
 /// with iceoryx2's own events (a datagram on a unix socket, `ppoll`);

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, RunScope, PREFIX_ENV};
 use hydractl_config::Config;
+use hydractl_samples::service::STAGES;
 use hydractl_samples::{
     code, name_str, service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent,
     SupervisorStatus, ValveSample,
@@ -48,8 +49,8 @@ pub struct RunArgs {
     split: hydractl_processes::SplitArgs,
 }
 
-/// The chain's stages, in order, as `latency_by_stage_us` names them.
-const STAGES: [&str; 5] = ["sensor", "friction", "position", "torque", "valve"];
+/// The chain's last stage, the valve, among the stages that
+/// `latency_by_stage_us` names in order.
 const VALVE_STAGE: usize = STAGES.len() - 1;
 
 pub fn run(mut args: RunArgs) -> Result<()> {
