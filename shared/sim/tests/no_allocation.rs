@@ -6,6 +6,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
 use hydractl_config::{Config, Structure, TorqueVariant};
+use hydractl_control::VelocityMethod;
 use hydractl_plant::{Effect, EffectKind};
 use hydractl_sim::build_plant;
 use hydractl_stages::ControlStack;
@@ -65,14 +66,16 @@ fn a_control_period_allocates_nothing() {
         .iter()
         .map(|k| Effect::parse(k.name()).expect("defaults"))
         .collect();
-    for (structure, torque) in [
-        (Structure::Position, TorqueVariant::Pid),
-        (Structure::Cascade, TorqueVariant::Pid),
-        (Structure::Cascade, TorqueVariant::Hinf),
+    for (structure, torque, velocity) in [
+        (Structure::Position, TorqueVariant::Pid, VelocityMethod::Differentiator),
+        (Structure::Cascade, TorqueVariant::Pid, VelocityMethod::Differentiator),
+        (Structure::Cascade, TorqueVariant::Hinf, VelocityMethod::Differentiator),
+        (Structure::Cascade, TorqueVariant::Pid, VelocityMethod::Observer),
     ] {
         let mut config = Config::default_sim().expect("valid");
         config.control.structure = structure;
         config.control.torque_variant = torque;
+        config.control.velocity_estimator.method = velocity;
         let (mut plant, mut sensor) = build_plant(&config, &all_effects).expect("plant");
         let mut stack = ControlStack::new(&config).expect("stack");
         let substeps = config.timing.substeps();
@@ -85,7 +88,7 @@ fn a_control_period_allocates_nothing() {
         }
         COUNTING.with(|c| c.set(false));
         let after = ALLOCATIONS.with(Cell::get);
-        assert_eq!(after - before, 0, "{structure:?} / {torque:?} allocated");
+        assert_eq!(after - before, 0, "{structure:?} / {torque:?} / {velocity:?} allocated");
     }
 }
 
