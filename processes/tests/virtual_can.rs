@@ -3,13 +3,17 @@
 //! the bitrate, the lowest ID wins when the bus frees, and every station
 //! but the sender receives each frame once, through its filters.
 
+mod common;
+
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use hydractl_bus::can::{CanPort, Filter, Received, VirtualCanPort};
-use hydractl_bus::{Bus, RunScope, PREFIX_ENV};
+use hydractl_bus::{Bus, PREFIX_ENV};
 use hydractl_can::timing::{bus_time_ns, frame_bits};
 use hydractl_can::Frame;
+
+use common::TestScope;
 
 const BITRATE: u32 = 50_000;
 
@@ -37,8 +41,7 @@ fn receive_n(port: &VirtualCanPort, n: usize, within: Duration) -> Vec<Received>
 
 #[test]
 fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
-    let scope = RunScope::new(&format!("t{}_vcan_", std::process::id() % 100_000)).expect("prefix");
-    scope.remove_all_files().expect("clean start");
+    let scope = TestScope::new("vcan");
     let dir = std::env::temp_dir().join(format!("hydractl-vcan-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("dir");
     let config = dir.join("vcan.toml");
@@ -126,6 +129,5 @@ fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
     drop((sender, receiver, bus));
     drop(_wire);
     scope.clean_stale().expect("clean");
-    scope.remove_all_files().ok();
     std::fs::remove_dir_all(dir).ok();
 }
