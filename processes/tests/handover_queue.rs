@@ -4,24 +4,20 @@
 //! one's answers, as the supervisor does), each read once, in order, and
 //! acknowledged.
 
-mod common;
-
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use hydractl_bus::{clock, Bus, Outlet, Reader};
+use hydractl_bus::{clock, Bus, Outlet, OwnedScope, Reader};
 use hydractl_processes::handover::HandoverInbox;
 use hydractl_samples::{code, service, Handover, HandoverAck};
-
-use common::TestScope;
 
 const HANDOVERS: u64 = 4000;
 const STAGES: [u32; 3] = [code::STAGE_POSITION, code::STAGE_TORQUE, code::STAGE_PLANT];
 
 #[test]
 fn thousands_of_handovers_under_load_are_each_read_once_in_order_and_acknowledged() {
-    let scope = TestScope::new("handq");
+    let scope = OwnedScope::fresh(&format!("t{}_handq_", std::process::id() % 100_000)).expect("prefix");
     let stop = Arc::new(AtomicBool::new(false));
     // Every CPU busy.
     let load: Vec<_> = (0..std::thread::available_parallelism().map_or(2, |n| n.get()))

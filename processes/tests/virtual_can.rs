@@ -3,17 +3,13 @@
 //! the bitrate, the lowest ID wins when the bus frees, and every station
 //! but the sender receives each frame once, through its filters.
 
-mod common;
-
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use hydractl_bus::can::{CanPort, Filter, Received, VirtualCanPort};
-use hydractl_bus::{Bus, PREFIX_ENV};
+use hydractl_bus::{Bus, OwnedScope, PREFIX_ENV};
 use hydractl_can::timing::{bus_time_ns, frame_bits};
 use hydractl_can::Frame;
-
-use common::TestScope;
 
 const BITRATE: u32 = 50_000;
 
@@ -41,7 +37,7 @@ fn receive_n(port: &VirtualCanPort, n: usize, within: Duration) -> Vec<Received>
 
 #[test]
 fn frames_cross_the_virtual_bus_in_arbitration_order_taking_their_bus_time() {
-    let scope = TestScope::new("vcan");
+    let scope = OwnedScope::fresh(&format!("t{}_vcan_", std::process::id() % 100_000)).expect("prefix");
     let dir = std::env::temp_dir().join(format!("hydractl-vcan-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("dir");
     let config = dir.join("vcan.toml");

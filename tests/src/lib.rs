@@ -35,7 +35,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use hydractl_bus::{Bus, Reader, RunScope, PREFIX_ENV};
+use hydractl_bus::{Bus, OwnedScope, Reader, RunScope, PREFIX_ENV};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -77,7 +77,7 @@ pub fn state_dir() -> PathBuf {
 /// A run scope of a test's own, whose files are removed when it is dropped,
 /// also when the test fails half-way. Declare it before the run's guard, so
 /// that the run stops first.
-pub struct ScopeGuard(pub RunScope);
+pub struct ScopeGuard(OwnedScope);
 
 impl std::ops::Deref for ScopeGuard {
     type Target = RunScope;
@@ -88,7 +88,7 @@ impl std::ops::Deref for ScopeGuard {
 
 impl Drop for ScopeGuard {
     fn drop(&mut self) {
-        let _ = self.0.clean_stale();
+        // The shared memory goes with the field, after this.
         let _ = std::fs::remove_dir_all(state_dir().join(self.0.prefix()));
     }
 }
@@ -96,8 +96,7 @@ impl Drop for ScopeGuard {
 /// A prefix no other test or run uses.
 pub fn unique_scope(test: &str) -> ScopeGuard {
     let prefix = format!("t{}_{}_", std::process::id() % 100_000, test);
-    let scope = RunScope::new(&prefix).expect("valid prefix");
-    scope.remove_all_files().expect("clean start");
+    let scope = OwnedScope::fresh(&prefix).expect("valid prefix, clean start");
     // What a crashed run of the same prefix latched is not this test's.
     let _ = std::fs::remove_dir_all(state_dir().join(scope.prefix()));
     ScopeGuard(scope)

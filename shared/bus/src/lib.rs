@@ -50,7 +50,7 @@ pub use doorbell::{Doorbell, Rung};
 /// What a command's request and reply must be: plain data iceoryx2 copies.
 pub use iceoryx2::prelude::ZeroCopySend;
 pub use outlet::{Inlet, Outlet, PublisherWatch, Reader, Wakeup, CAN_RX_MAX_BUFFER};
-pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
+pub use scope::{quiet_ipc_logging, Bus, DiscoveredService, OwnedScope, RunScope, DEFAULT_PREFIX, PREFIX_ENV};
 pub use wait::{
     guarded, run_loop, run_single, run_until, unblock_termination_signals, wait_input, Flow, Input, LoopExit, Wake,
 };

@@ -300,6 +300,34 @@ pub fn quiet_ipc_logging() {
     set_log_level_from_env_or(LogLevel::Error);
 }
 
+/// A scope of its own, started clean and cleaned when dropped, however its
+/// owner ends: a test's failed assert must not leave shared memory behind.
+/// Drop it after everything that has a node in it.
+#[derive(Debug)]
+pub struct OwnedScope(RunScope);
+
+impl OwnedScope {
+    /// `prefix`, with what a crashed run of the same prefix left removed.
+    pub fn fresh(prefix: &str) -> Result<Self, BusError> {
+        let scope = RunScope::new(prefix)?;
+        scope.remove_all_files()?;
+        Ok(Self(scope))
+    }
+}
+
+impl std::ops::Deref for OwnedScope {
+    type Target = RunScope;
+    fn deref(&self) -> &RunScope {
+        &self.0
+    }
+}
+
+impl Drop for OwnedScope {
+    fn drop(&mut self) {
+        let _ = self.0.clean_stale();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
