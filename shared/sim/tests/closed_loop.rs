@@ -5,6 +5,7 @@ use hydractl_config::{Config, PositionVariant, Structure, TorqueVariant};
 use hydractl_control::VelocityMethod;
 use hydractl_plant::{Effect, EffectKind, PlantParams, SensorParams};
 use hydractl_sim::simulate;
+use std::path::Path;
 
 fn default_config(structure: Structure) -> Config {
     let mut config = Config::default_sim().expect("the built-in config is valid");
@@ -45,17 +46,13 @@ fn command_travel(records: &[hydractl_sim::Record]) -> f64 {
     steps / (records.len() as f64 * 1e-3)
 }
 
-/// The velocity observer with the outer loops' derivative retuned for it
-/// (BENCHMARKS.md, "Controller variants"): kd 165 and a 40 ms filter, where
-/// the papers' 224 and 30 ms, tuned on the differenced counts, go into a
-/// limit cycle behind the torque PID once the valve saturates.
+/// `config/observer.toml`: the velocity observer, the outer loops'
+/// derivative retuned for it.
 fn with_the_observer(structure: Structure) -> Config {
-    let mut config = default_config(structure);
-    config.control.velocity_estimator.method = VelocityMethod::Observer;
-    for pid in [&mut config.control.cascade.pid, &mut config.control.cascade.mfc.pid_a] {
-        pid.kd = 165.0;
-        pid.derivative_filter_s = 0.04;
-    }
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/observer.toml");
+    let mut config = Config::load(&path).expect("config/observer.toml");
+    assert_eq!(config.control.velocity_estimator.method, VelocityMethod::Observer);
+    config.control.structure = structure;
     config
 }
 
