@@ -124,10 +124,14 @@ pub enum BusError {
     Cleanup { path: String, source: std::io::Error },
     #[error("cannot open the doorbell {path}: {source}")]
     Doorbell { path: String, source: std::io::Error },
-    #[error(
-        "no permission for {path}, owned by {owner}: another user's run left it; run as {owner}, remove it as root, or set HYDRACTL_IPC_PREFIX to another prefix"
-    )]
-    Permission { path: String, owner: String },
+    #[error("no permission for {path} (owner {owner}, mode {mode:o}): {fix}")]
+    Permission {
+        path: String,
+        owner: String,
+        mode: u32,
+        /// What the user can do about it, in words.
+        fix: String,
+    },
 }
 
 impl BusError {

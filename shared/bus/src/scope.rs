@@ -17,6 +17,9 @@ pub struct RunScope {
 pub const DEFAULT_PREFIX: &str = "hydractl_";
 /// The environment variable that passes the prefix to child processes.
 pub const PREFIX_ENV: &str = "HYDRACTL_IPC_PREFIX";
+/// The folder every run's own folder lives in, iceoryx2's, shared by the
+/// computer's users.
+const IPC_ROOT: &str = "/tmp/iceoryx2";
 
 impl RunScope {
     pub fn new(prefix: &str) -> Result<Self, BusError> {
@@ -41,7 +44,7 @@ impl RunScope {
 
     /// The run's own folder under the iceoryx2 folder.
     pub fn root(&self) -> PathBuf {
-        PathBuf::from(format!("/tmp/iceoryx2/{}/", self.prefix))
+        PathBuf::from(format!("{IPC_ROOT}/{}/", self.prefix))
     }
 
     pub fn config(&self) -> Result<Config, BusError> {
@@ -190,14 +193,35 @@ impl RunScope {
             visit(state);
             CallbackProgression::Continue
         })
-        .map_err(|e| BusError::ipc("listing nodes", e))
+        .map_err(|e| {
+            self.permission_problem()
+                .unwrap_or_else(|| BusError::ipc("listing nodes", e))
+        })
     }
 
     /// The first of this run's files that this user may not both read and
-    /// write (iceoryx2 needs both), as a [`BusError::Permission`] naming the
-    /// file and its owner.
+    /// write (iceoryx2 needs both), or the shared folder above them when
+    /// this user cannot reach or make the run's folder in it, as a
+    /// [`BusError::Permission`] naming the file, its owner and the fix.
     pub fn permission_problem(&self) -> Option<BusError> {
         use nix::unistd::{access, AccessFlags};
+        let parent = std::path::Path::new(IPC_ROOT);
+        let needs = if self.root().exists() {
+            AccessFlags::X_OK
+        } else {
+            AccessFlags::W_OK | AccessFlags::X_OK
+        };
+        if parent.exists() && access(parent, needs).is_err() {
+            let owner = owner_of(parent);
+            return Some(BusError::Permission {
+                mode: mode_of(parent),
+                fix: format!(
+                    "the folder of every user's runs, made by {owner} for its own alone; as root, `chmod 1777 {IPC_ROOT}` (as hydractl leaves it), or run as {owner}"
+                ),
+                owner,
+                path: IPC_ROOT.to_owned(),
+            });
+        }
         let mut files = self.shm_files();
         let mut folders = vec![self.root()];
         while let Some(folder) = folders.pop() {
@@ -215,9 +239,17 @@ impl RunScope {
             .into_iter()
             .filter(|path| path.exists())
             .find(|path| access(path.as_path(), AccessFlags::R_OK | AccessFlags::W_OK).is_err())
-            .map(|path| BusError::Permission {
-                owner: owner_of(&path),
-                path: path.display().to_string(),
+            .map(|path| {
+                let owner = owner_of(&path);
+                BusError::Permission {
+                    mode: mode_of(&path),
+                    fix: format!(
+                        "another user's run left it; run as {owner}, remove it as root once that run has ended (`rm -rf {}`), or set {PREFIX_ENV} to a prefix of your own",
+                        path.display()
+                    ),
+                    owner,
+                    path: path.display().to_string(),
+                }
             })
     }
 
@@ -237,6 +269,24 @@ fn owner_of(path: &std::path::Path) -> String {
         Ok(Some(user)) => format!("{} (uid {uid})", user.name),
         _ => format!("uid {uid}"),
     }
+}
+
+/// iceoryx2 makes its folder for its first user alone (0750), and every
+/// other user's run then fails: made ours, it becomes what /tmp is
+/// (1777: anyone makes a folder in it, only its owner removes it), while
+/// each run's own folder and files stay its user's.
+fn share_ipc_root() {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let Ok(meta) = std::fs::metadata(IPC_ROOT) else { return };
+    if meta.uid() == nix::unistd::geteuid().as_raw() && meta.permissions().mode() & 0o7777 != 0o1777 {
+        let _ = std::fs::set_permissions(IPC_ROOT, std::fs::Permissions::from_mode(0o1777));
+    }
+}
+
+/// The permission bits of `path` (0 when it cannot be read).
+fn mode_of(path: &std::path::Path) -> u32 {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::metadata(path).map_or(0, |m| m.permissions().mode() & 0o7777)
 }
 
 /// A publish-subscribe service found by discovery.
@@ -268,6 +318,7 @@ impl Bus {
                     .unwrap_or_else(|| BusError::ipc(format!("creating node {name}"), e))
             })?;
         scope.restrict_node_counter();
+        share_ipc_root();
         let bus = Self {
             node,
             scope: scope.clone(),
