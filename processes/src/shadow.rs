@@ -15,13 +15,14 @@ use hydractl_ident::greybox::{
 use hydractl_ident::Dataset;
 use hydractl_plant::EffectKind;
 use hydractl_plant::PA_PER_BAR;
+use hydractl_recording::CommandJoin;
 use hydractl_samples::{drift, fixed_name, ModelDrift, PlantReading, ShadowSample, ValveSample};
 
 /// One control period as the model reads it: `t, u, p_a (bar), p_b, theta`.
 type Row = [f64; 5];
 
-/// Readings joined with the valve command computed from them, by sequence
-/// number, as `mcap export-csv` joins them; a run of consecutive readings
+/// Readings joined with the valve command computed from them
+/// ([`CommandJoin`], as `mcap export-csv` joins them); a run of consecutive readings
 /// from one source (a gap or a handover starts it afresh).
 pub struct Rows {
     period_s: f64,
@@ -32,8 +33,7 @@ pub struct Rows {
     rows: VecDeque<Row>,
     /// The sequence number and source of the newest row.
     last: Option<(u64, u32)>,
-    pending: BTreeMap<u64, PlantReading>,
-    command: f64,
+    join: CommandJoin,
     /// Rows accepted since the start, and that count when the current run
     /// of rows began: marks taken from it never run backwards over a gap.
     accepted: u64,
@@ -49,8 +49,7 @@ impl Rows {
             capacity,
             rows: VecDeque::with_capacity(capacity),
             last: None,
-            pending: BTreeMap::new(),
-            command: 0.0,
+            join: CommandJoin::new(),
             accepted: 0,
             run_start: 0,
             gaps: 0,
@@ -61,23 +60,21 @@ impl Rows {
     /// and the rows start afresh when the watched one comes back.
     pub fn reading(&mut self, reading: PlantReading) {
         if reading.source == self.watched {
-            self.pending.insert(reading.sensor_seq, reading);
+            self.join.reading(reading);
         }
     }
 
     /// A valve sample: its reading becomes a row, and any reading before it
     /// whose command never came holds the command before (as the valve does).
     pub fn valve(&mut self, valve: ValveSample) {
-        while let Some(entry) = self.pending.first_entry().filter(|e| *e.key() <= valve.sensor_seq) {
-            let (seq, reading) = entry.remove_entry();
-            if seq == valve.sensor_seq {
-                self.command = valve.command;
-            }
-            self.push(&reading);
-        }
+        let mut join = std::mem::take(&mut self.join);
+        join.valve(valve, |reading, valve, _| {
+            self.push(reading, valve.map_or(0.0, |v| v.command))
+        });
+        self.join = join;
     }
 
-    fn push(&mut self, r: &PlantReading) {
+    fn push(&mut self, r: &PlantReading, command: f64) {
         let continues = self
             .last
             .is_some_and(|(seq, source)| r.sensor_seq == seq + 1 && r.source == source);
@@ -93,7 +90,7 @@ impl Rows {
         }
         let row = [
             r.sensor_seq as f64 * self.period_s,
-            self.command,
+            command,
             r.p_a / PA_PER_BAR,
             r.p_b / PA_PER_BAR,
             r.angle,

@@ -7,7 +7,7 @@ use hydractl_samples::{
 };
 use serde::Serialize;
 
-use crate::{decode, read_messages_in, ReadOutcome, RecordingError, Window};
+use crate::{decode, read_messages_in, CommandJoin, ReadOutcome, RecordingError, Window};
 
 /// The columns the model tools read, in order.
 pub const MODEL_COLUMNS: [&str; 6] = ["t", "u", "p_a", "p_b", "theta", "theta_ref"];
@@ -215,33 +215,39 @@ pub fn export_rows_in(path: &Path, window: Option<Window>) -> Result<Export, Rec
         torque_command: f64::NAN,
         valve_requested: f64::NAN,
     };
+    let mut join = CommandJoin::new();
     for (seq, r) in plant.range(start..=end) {
-        let (v, p) = (valve.get(seq), position.get(seq));
-        if v.is_none() || p.is_none() {
-            held += 1;
-        }
-        (row.t, row.p_a, row.p_b, row.theta) = (
-            (seq - start) as f64 * period_s,
-            r.p_a / PA_PER_BAR,
-            r.p_b / PA_PER_BAR,
-            r.angle,
-        );
-        if let Some(v) = v {
-            (row.u, row.valve_requested) = (v.command, v.requested);
-        }
-        if let Some(p) = p {
-            (row.theta_ref, row.position_output) = (p.reference_angle, p.output);
-        }
-        if let Some(s) = sensor.get(seq) {
-            (row.omega_est, row.torque) = (s.velocity, s.torque);
-        }
-        if let Some(f) = friction.get(seq) {
-            (row.blended_velocity, row.friction_comp) = (f.blended_velocity, f.compensation);
-        }
-        if let Some(t) = torque.get(seq) {
-            (row.torque_ref, row.torque_command) = (t.torque_reference, t.command);
-        }
-        rows.push(row);
+        join.reading(*r);
+        let Some(v) = valve.get(seq) else { continue };
+        join.valve(*v, |r, v, own| {
+            let seq = r.sensor_seq;
+            let p = position.get(&seq);
+            if !own || p.is_none() {
+                held += 1;
+            }
+            (row.t, row.p_a, row.p_b, row.theta) = (
+                (seq - start) as f64 * period_s,
+                r.p_a / PA_PER_BAR,
+                r.p_b / PA_PER_BAR,
+                r.angle,
+            );
+            if let Some(v) = v {
+                (row.u, row.valve_requested) = (v.command, v.requested);
+            }
+            if let Some(p) = p {
+                (row.theta_ref, row.position_output) = (p.reference_angle, p.output);
+            }
+            if let Some(s) = sensor.get(&seq) {
+                (row.omega_est, row.torque) = (s.velocity, s.torque);
+            }
+            if let Some(f) = friction.get(&seq) {
+                (row.blended_velocity, row.friction_comp) = (f.blended_velocity, f.compensation);
+            }
+            if let Some(t) = torque.get(&seq) {
+                (row.torque_ref, row.torque_command) = (t.torque_reference, t.command);
+            }
+            rows.push(row);
+        });
     }
     Ok(Export {
         rows,

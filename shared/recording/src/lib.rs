@@ -13,17 +13,20 @@
 //! reached a file read back and counted, writing stopped or the oldest part
 //! deleted), the reader (up to the last whole chunk of a cut file, every bad
 //! message named), `mcap info`'s summary, and the model tools' rows
-//! (`export-csv`).
+//! (`export-csv`) with the one join of readings and valve commands
+//! (`CommandJoin`) the shadow uses too.
 
 mod can;
 mod export;
 mod info;
+mod join;
 mod read;
 mod write;
 
 pub use can::{decode_frame, encode_frame, is_can_frame, RecordedFrame, CAN_FRAME_KIND};
 pub use export::{export_rows, export_rows_in, write_csv, Export, ModelRow, MODEL_COLUMNS, SIGNAL_COLUMNS};
 pub use info::{summarize, ChannelSummary, RecordingSummary};
+pub use join::CommandJoin;
 pub use read::{decode, read_messages, read_messages_in, ReadOutcome, RecordedMessage, Window};
 pub use write::{ChannelHandle, RecordOptions, RecordingWriter, Unrecorded, WriterNews};
 
