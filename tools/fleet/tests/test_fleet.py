@@ -21,6 +21,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import tomllib
 import unittest
 from pathlib import Path
 
@@ -40,12 +41,17 @@ def day_name(d: int) -> str:
     return (FIRST + dt.timedelta(days=d)).isoformat()
 
 
-# Off the loop's CPU (`loop_cpu = 1` in the configs), through exec (a
-# `preexec_fn` is unsafe beside the thread that drives the CAN machine).
-# At nice 5: below the stack's own processes there, above the other tests
-# that only compute (nice 19), which would otherwise starve this work past
-# the CAN machine's days and make the test wait for it.
-BESIDE_THE_LOOP = [sys.executable, "-c", "import os, sys; os.sched_setaffinity(0, {0}); os.nice(5); os.execvp(sys.argv[1], sys.argv[1:])"]
+# The CPUs the loop leaves free: every CPU this test may use but the one
+# the configs pin the loop to (`[timing] loop_cpu` of config/sim.toml,
+# which can.toml and machine.toml take as their base).
+LOOP_CPU = tomllib.loads((REPO / "config" / "sim.toml").read_text())["timing"].get("loop_cpu")
+FREE_CPUS = sorted(os.sched_getaffinity(0) - {LOOP_CPU}) or sorted(os.sched_getaffinity(0))
+# Through exec (a `preexec_fn` is unsafe beside the thread that drives the
+# CAN machine). At nice 5: below the stack's own processes there, above the
+# other tests that only compute (nice 19), which would otherwise starve
+# this work past the CAN machine's days and make the test wait for it.
+BESIDE_THE_LOOP = [sys.executable, "-c", "import os, sys; os.sched_setaffinity(0, {int(c) for c in sys.argv[1].split(',')}); "
+                   "os.nice(5); os.execvp(sys.argv[2], sys.argv[2:])", ",".join(map(str, FREE_CPUS))]
 
 
 def run(argv: list[str], beside: bool) -> subprocess.CompletedProcess:

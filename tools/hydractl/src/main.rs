@@ -100,7 +100,7 @@ enum Command {
     /// Read recordings.
     #[command(subcommand)]
     Mcap(recording::McapCommand),
-    /// The machine's CAN bus: a period's frame budget.
+    /// The machine's CAN bus: a period's frame budget, and the run's virtual bus dumped or replayed.
     #[command(subcommand)]
     Can(can::CanCommand),
     /// Whether this computer can hold the config's loop: kernel, CPU,

@@ -49,7 +49,7 @@ pub enum McapCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Write the columns the model tools read: t,u,p_a,p_b,theta,theta_ref.
+    /// Write the model tools' columns (t,u,p_a,p_b,theta,theta_ref) and the stages' signals.
     ExportCsv {
         file: PathBuf,
         #[arg(long)]
