@@ -13,13 +13,13 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use hydractl_bus::can::{open_port, CanPort, Filter};
 use hydractl_bus::{clock, wait_input, Bus};
 use hydractl_can::canopen::{self, cob_id, NmtCommand, NmtState, NodeId};
 use hydractl_can::heartbeat::set_heartbeat;
 use hydractl_can::master::{SensorMaster, SensorValues};
 use hydractl_can::profile::{Pdo, Profile};
 use hydractl_can::valve::DeviceState;
+use hydractl_canio::{open_port, CanPort, Filter};
 
 pub struct CanSensors {
     port: Box<dyn CanPort>,

@@ -15,13 +15,13 @@
 //! [`fault_code`] numbers the faults that are not the valve's own EMCYs.
 
 use anyhow::{Context, Result};
-use hydractl_bus::can::{open_port, CanPort, Filter};
 use hydractl_bus::{clock, Bus};
 use hydractl_can::canopen::{cob_id, Emergency, NmtState};
 use hydractl_can::master::{ValveFrame, ValveMaster};
 use hydractl_can::profile::Profile;
 use hydractl_can::spool::SpoolWatch;
 use hydractl_can::valve::{fault_code, fault_code_name, DeviceState};
+use hydractl_canio::{open_port, CanPort, Filter};
 
 use crate::valve_latch::{FaultLatch, LatchedFault};
 

@@ -42,7 +42,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use hydractl_bus::{placement, quiet_ipc_logging, Bus, RunScope};
+use hydractl_bus::{quiet_ipc_logging, Bus, RunScope};
 use hydractl_config::Config;
 use hydractl_samples::SensorSample;
 use hydractl_stages::SensorEstimate;
@@ -253,7 +253,7 @@ impl Started {
         // Locked first: a page faulted in at the loop's priority would
         // stall the chain beside it.
         if self.config.timing.lock_memory {
-            if let Err(e) = placement::lock_memory() {
+            if let Err(e) = hydractl_rt::lock_memory() {
                 tracing::warn!("{e}");
             }
         }
@@ -266,7 +266,7 @@ impl Started {
             "valve" => (p + 1).min(99),
             _ => p,
         });
-        if let Err(e) = placement::run_realtime(priority) {
+        if let Err(e) = hydractl_rt::run_realtime(priority) {
             tracing::warn!("{e}");
         }
     }
@@ -287,9 +287,9 @@ pub fn start(name: &str) -> Result<Started> {
     let log_span = logging::init(name, filter, &config.log);
     // The loop's CPU is for the loop: watching and writing files go elsewhere.
     let placed = if matches!(name, "supervisor" | "recorder" | "shadow") {
-        placement::keep_off_loop_cpu(config.timing.loop_cpu)
+        hydractl_rt::keep_off_loop_cpu(config.timing.loop_cpu)
     } else {
-        placement::pin_to_loop_cpu(config.timing.loop_cpu)
+        hydractl_rt::pin_to_loop_cpu(config.timing.loop_cpu)
     };
     if let Err(e) = placed {
         tracing::warn!("{e}");

@@ -6,10 +6,10 @@
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use hydractl_bus::can::{CanPort, Filter, Received, VirtualCanPort};
 use hydractl_bus::{Bus, OwnedScope, PREFIX_ENV};
 use hydractl_can::timing::{bus_time_ns, frame_bits};
 use hydractl_can::Frame;
+use hydractl_canio::{CanPort, Filter, Received, VirtualCanPort};
 
 const BITRATE: u32 = 50_000;
 

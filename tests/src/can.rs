@@ -7,10 +7,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use hydractl_bus::can::{CanPort, VirtualCanPort};
 use hydractl_bus::{Bus, RunScope};
 use hydractl_can::valve::DeviceState;
 use hydractl_can::Frame;
+use hydractl_canio::{CanPort, VirtualCanPort};
 
 pub const VALVE_SET_POINT: u32 = 0x210;
 pub const VALVE_STATUS: u32 = 0x190;

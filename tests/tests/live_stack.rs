@@ -229,7 +229,7 @@ fn put_back_as_recorded(
 
 /// Whether a kernel CPU list such as `0-3,6` holds `cpu`.
 fn cpu_list_has(list: &str, cpu: usize) -> bool {
-    hydractl_bus::placement::CpuList::parse(list).is_some_and(|l| l.contains(cpu))
+    hydractl_rt::CpuList::parse(list).is_some_and(|l| l.contains(cpu))
 }
 
 /// The kernel's present limit on CPU idle exit latency, µs, when this

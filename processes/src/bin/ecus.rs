@@ -12,12 +12,12 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hydractl_bus::can::{CanPort, VirtualCanPort};
 use hydractl_bus::{clock, run_until};
 use hydractl_can::canopen::is_sync;
 use hydractl_can::ecu::{Outbox, SensorEcu, ValveEcu};
 use hydractl_can::profile::Transport;
 use hydractl_can::Frame;
+use hydractl_canio::{CanPort, VirtualCanPort};
 use hydractl_plant::Drift;
 use hydractl_sim::build_plant;
 

@@ -20,7 +20,7 @@ fn main() -> Result<()> {
     // For the whole run: the loop's stages wake at every hop, and nothing
     // but the loop should take its CPU.
     let timing = &started.config.timing;
-    let (_reservation, refusals) = hydractl_bus::placement::reserve_for_run(
+    let (_reservation, refusals) = hydractl_rt::reserve_for_run(
         timing.loop_cpu,
         timing.cpu_dma_latency_us,
         timing.interrupts_off_loop_cpu,

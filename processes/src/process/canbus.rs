@@ -10,9 +10,9 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use hydractl_bus::can::{frame_sample, sample_frame};
 use hydractl_bus::{clock, run_until, Inlet, Outlet};
 use hydractl_can::wire::Wire;
+use hydractl_canio::{frame_sample, sample_frame};
 use hydractl_samples::{service, CanFrameSample, WireStatus};
 
 /// Frames the wire may be handed between two of its wake-ups.

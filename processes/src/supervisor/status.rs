@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use std::collections::HashMap;
 
-use hydractl_bus::{clock, placement};
+use hydractl_bus::clock;
 use hydractl_samples::{fixed_name, source, ProcessStatus, SupervisorStatus, MAX_PROCESSES, UNKNOWN};
 
 use super::child::Supervised;
@@ -35,10 +35,10 @@ impl LoopMemory {
         let (Some(pid), Some(_)) = (child.pid(), child.last_seq) else {
             return (UNKNOWN, 0);
         };
-        let Some(now) = placement::page_faults(Some(pid)) else {
+        let Some(now) = hydractl_rt::page_faults(Some(pid)) else {
             return (UNKNOWN, 0);
         };
-        let locked = placement::memory_locked(pid);
+        let locked = hydractl_rt::memory_locked(pid);
         let entry = self.at_first_answer.entry(pid).or_insert((now, 0));
         if locked && entry.1 < 2 {
             *entry = (now, entry.1 + 1);

@@ -3,12 +3,12 @@
 //! (`Outlet`), receive (`Inlet`), wait on several inputs at once
 //! (`run_loop`), and to clean up what a run leaves behind.
 //!
-//! What it holds: iceoryx2 plumbing: a run's scope (prefix and root, cleanup
-//! of dead nodes and files, discovery of its publish-subscribe services, and
-//! a permission error that names the file and its owner when another user's
-//! run left it), `Outlet` (publish, then wake the readers), `Reader` (polled)
-//! and `Inlet` (reader + what to sleep on); `Doorbell`, the loop's wake-up: a
-//! futex in the run's shared memory per loop service
+//! What it holds: a run's scope (prefix and root, cleanup of dead nodes
+//! and files, discovery of its publish-subscribe services, and a
+//! permission error that names the file, its owner and mode when another
+//! user's run left it), `Outlet` (publish, then wake the readers), `Reader`
+//! (polled) and `Inlet` (reader + what to sleep on); `Doorbell`, the loop's
+//! wake-up: a futex in the run's shared memory per loop service
 //! (`service::PIPELINE_SERVICES`), rung after each sample, waited on with a
 //! timeout (every other service wakes its listeners with iceoryx2's events,
 //! which `ppoll` sees beside sockets), commands over request-response
@@ -16,33 +16,17 @@
 //! listeners and a tick, ending on SIGINT/SIGTERM, which are let through only
 //! inside the wait; a doorbell alone is waited on by a timed futex wait,
 //! which a signal ends), `run_until` (listeners or sockets, and a deadline
-//! asked before every wait) and `run_single` (one input, no tick), `can` (the
-//! machine's CAN bus as a process sees it, `CanPort`: `SocketCanPort`, a
-//! non-blocking raw socket filtered in the kernel, each frame stamped by the
-//! kernel when it arrived (`kernel_time`), whose open failure says whether
-//! the kernel lacks SocketCAN, the interface is missing or down;
-//! `VirtualCanPort`, a station on the virtual bus), the monotonic clock,
-//! where the process binaries are (`process_dir`: `HYDRACTL_PROCESS_DIR`,
-//! beside the executable, the installed `../lib/hydractl`), CPU placement,
-//! real-time priority, locked memory and a process's page faults, and what a
-//! run reserves of the computer (`reserve_for_run`: the CPUs' idle exit
-//! latency through the PM QoS request, device interrupts steered off the
-//! loop's CPU, recorded in `/run/hydractl-interrupts` until put back), and
-//! the sensor and valve device traits with their simulated implementations;
-//! `semaphore_service`, iceoryx2 with its semaphore events (a transport of
-//! the latency benchmark only, to compare the doorbells with), with
-//! `SemaphoreReader` for the benchmark's observers.
+//! asked before every wait) and `run_single` (one input, no tick), the
+//! monotonic clock, and where the process binaries are (`process_dir`:
+//! `HYDRACTL_PROCESS_DIR`, beside the executable, the installed
+//! `../lib/hydractl`). Where the processes run is `hydractl-rt`'s; the CAN
+//! bus as a process sees it, `hydractl-canio`'s.
 
-pub mod can;
 pub mod clock;
 mod command;
-pub mod devices;
 mod doorbell;
-pub mod kernel_time;
 mod outlet;
-pub mod placement;
 mod scope;
-pub mod semaphore_service;
 mod wait;
 
 pub use command::{CommandClient, CommandServer, PendingCommand, PendingReply};

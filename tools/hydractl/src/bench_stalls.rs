@@ -11,7 +11,7 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use hydractl_bus::{clock, placement};
+use hydractl_bus::clock;
 use hydractl_config::Config;
 
 use crate::slowest::Slowest;
@@ -97,11 +97,11 @@ pub fn measure(config: &Config, cpu: Option<usize>, duration_s: f64) -> Result<S
     // The computer as a run sees it.
     let timing = &config.timing;
     let (reservation, refusals) =
-        placement::reserve_for_run(cpu, timing.cpu_dma_latency_us, timing.interrupts_off_loop_cpu);
+        hydractl_rt::reserve_for_run(cpu, timing.cpu_dma_latency_us, timing.interrupts_off_loop_cpu);
     for e in refusals {
         tracing::warn!("{e}");
     }
-    let refusals = placement::enter_loop(cpu, Some(99));
+    let refusals = hydractl_rt::enter_loop(cpu, Some(99));
     if let Some(e) = refusals.first() {
         // Preemptible, the loop would measure the system's other work.
         return Err(anyhow::anyhow!("{e}")).context("bench stalls needs the CPU pinned at SCHED_FIFO 99");

@@ -72,7 +72,7 @@ fn open_virtual_bus(config: Option<PathBuf>, node: &str) -> Result<(hydractl_bus
 }
 
 fn dump(config: Option<PathBuf>, log: Option<PathBuf>, duration: Option<f64>) -> Result<()> {
-    use hydractl_bus::can::{CanPort, VirtualCanPort};
+    use hydractl_canio::{CanPort, VirtualCanPort};
     use std::io::Write;
     if duration.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
         bail!("--duration must be a positive number of seconds");
@@ -120,7 +120,7 @@ fn dump(config: Option<PathBuf>, log: Option<PathBuf>, duration: Option<f64>) ->
 }
 
 fn replay(file: &std::path::Path, config: Option<PathBuf>) -> Result<()> {
-    use hydractl_bus::can::{CanPort, VirtualCanPort};
+    use hydractl_canio::{CanPort, VirtualCanPort};
     let text = std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
     let frames = hydractl_can::candump::parse(&text).with_context(|| file.display().to_string())?;
     let Some(first) = frames.first() else {

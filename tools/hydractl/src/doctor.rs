@@ -6,8 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use hydractl_bus::placement::CpuList;
 use hydractl_config::Config;
+use hydractl_rt::CpuList;
 use serde::Serialize;
 
 #[derive(clap::Args)]

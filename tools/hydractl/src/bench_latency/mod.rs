@@ -14,15 +14,14 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hydractl_bus::semaphore_service::{
-    self, SemaphoreInlet, SemaphoreOutlet, SemaphoreReader, SemaphoreWaker, MAX_OBSERVERS,
-};
-use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, Reader, RunScope, Wakeup, PREFIX_ENV};
+use hydractl_bus::{clock, quiet_ipc_logging, Bus, Inlet, Outlet, Reader, RunScope, Wakeup, PREFIX_ENV};
 use hydractl_config::Config;
 use hydractl_samples::BenchSample;
 
 use crate::slowest::Slowest;
 
+mod semaphore_service;
+use semaphore_service::{SemaphoreInlet, SemaphoreOutlet, SemaphoreReader, SemaphoreWaker, MAX_OBSERVERS};
 mod stage;
 use stage::Stage;
 pub use stage::{stage, StageArgs};
@@ -171,12 +170,12 @@ pub fn bench(args: LatencyArgs) -> Result<()> {
     }
     quiet_ipc_logging();
     let config = Config::load_or_default(args.config.as_deref())?;
-    for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
+    for e in hydractl_rt::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         tracing::warn!("{e}");
     }
     // Held for the benchmark as `hydractl run` holds them for a run.
     let timing = &config.timing;
-    let (reservation, refusals) = placement::reserve_for_run(
+    let (reservation, refusals) = hydractl_rt::reserve_for_run(
         timing.loop_cpu,
         timing.cpu_dma_latency_us,
         timing.interrupts_off_loop_cpu,

@@ -5,9 +5,9 @@
 use std::net::UdpSocket;
 use std::path::PathBuf;
 
+use super::semaphore_service::{self, SemaphoreInlet, SemaphoreOutlet};
 use anyhow::{bail, Context, Result};
-use hydractl_bus::semaphore_service::{self, SemaphoreInlet, SemaphoreOutlet};
-use hydractl_bus::{clock, placement, quiet_ipc_logging, Bus, Inlet, Outlet, RunScope, Wakeup};
+use hydractl_bus::{clock, quiet_ipc_logging, Bus, Inlet, Outlet, RunScope, Wakeup};
 use hydractl_config::Config;
 use hydractl_plant::RawReading;
 use hydractl_samples::BenchSample;
@@ -108,7 +108,7 @@ impl Stage {
 pub fn stage(args: StageArgs) -> Result<()> {
     quiet_ipc_logging();
     let config = Config::load_or_default(args.config.as_deref())?;
-    for e in placement::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
+    for e in hydractl_rt::enter_loop(config.timing.loop_cpu, config.timing.realtime_priority) {
         tracing::warn!("{e}");
     }
     let mut stage = Stage::new(args.index, &config)?;

@@ -68,7 +68,7 @@ pub fn run(mut args: RunArgs) -> Result<()> {
         if can.transport == hydractl_can::profile::Transport::Socketcan {
             // Said here, once, before anything starts: a process that could
             // not open it would only be restarted again and again.
-            hydractl_bus::can::SocketCanPort::open(&can.interface, &[])
+            hydractl_canio::SocketCanPort::open(&can.interface, &[])
                 .with_context(|| format!("the machine's CAN bus ([can] in {})", config_name(&args.config)))?;
         }
     }
@@ -114,7 +114,7 @@ pub fn run(mut args: RunArgs) -> Result<()> {
         hydractl_ident::greybox::Shadow::new(model, Default::default())
             .with_context(|| format!("[shadow] model {}", path.display()))?;
     }
-    if let Err(e) = hydractl_bus::placement::keep_off_loop_cpu(config.timing.loop_cpu) {
+    if let Err(e) = hydractl_rt::keep_off_loop_cpu(config.timing.loop_cpu) {
         tracing::warn!("{e}");
     }
     quiet_ipc_logging();
@@ -387,7 +387,7 @@ fn watch(
     let mut can_watch = match &config.can {
         Some(can) => {
             let profile = can.resolve()?;
-            let port = hydractl_bus::can::open_monitor(&bus, &profile)?;
+            let port = hydractl_canio::open_monitor(&bus, &profile)?;
             // Every reading, for the machine's PDOs that were not there in time.
             let readings: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 256)?;
             let wire: Reader<hydractl_samples::WireStatus> =

@@ -11,7 +11,9 @@ use std::os::fd::AsFd;
 use hydractl_can::Frame;
 use hydractl_samples::{service, CanFrameSample};
 
-use crate::{clock, Bus, BusError, Inlet, Input, Outlet};
+use hydractl_bus::{clock, Bus, BusError, Inlet, Input, Outlet};
+
+mod kernel_time;
 
 /// Filters a port holds at most.
 pub const MAX_FILTERS: usize = 16;
@@ -163,10 +165,10 @@ impl VirtualCanPort {
     }
 
     /// A station that listens to every frame and must miss none (a
-    /// candump, a test's tap): it keeps [`crate::CAN_RX_MAX_BUFFER`]
+    /// candump, a test's tap): it keeps [`hydractl_bus::CAN_RX_MAX_BUFFER`]
     /// frames, most of a second of the bus, for when it is late to read.
     pub fn monitor(bus: &Bus, interface: &str) -> Result<Self, CanPortError> {
-        Self::open_keeping(bus, interface, &[], crate::CAN_RX_MAX_BUFFER)
+        Self::open_keeping(bus, interface, &[], hydractl_bus::CAN_RX_MAX_BUFFER)
     }
 
     fn open_keeping(bus: &Bus, interface: &str, filters: &[Filter], kept: usize) -> Result<Self, CanPortError> {

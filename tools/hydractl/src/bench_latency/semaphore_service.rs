@@ -4,8 +4,9 @@
 //! socket, no `ppoll`. The price: a listener cannot be waited on together
 //! with other inputs, its timed wait is a spin-and-sleep loop on a
 //! monotonic clock, and iceoryx2's signal handler restarts a blocking
-//! wait. So far only the latency benchmark uses it, to measure what the
-//! chain's single-input hops would gain.
+//! wait. The latency benchmark's third transport, to measure what the
+//! chain's single-input hops would gain; the live stack's waits need a
+//! timeout and a `ppoll` beside other inputs, which it cannot give.
 
 use core::fmt::Debug;
 
@@ -55,7 +56,15 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 
-use crate::{BusError, RunScope};
+use hydractl_bus::{BusError, RunScope};
+
+/// An iceoryx2 error as the bus reports its own.
+fn ipc(what: impl Into<String>, detail: impl Debug) -> BusError {
+    BusError::Ipc {
+        what: what.into(),
+        detail: format!("{detail:?}"),
+    }
+}
 
 /// A node of `scope` whose services have semaphore events. Its files carry
 /// the scope's prefix; `RunScope::remove_all_files` takes them.
@@ -63,7 +72,7 @@ pub fn open_node(scope: &RunScope) -> Result<Node<SemaphoreIpc>, BusError> {
     NodeBuilder::new()
         .config(&scope.config()?)
         .create::<SemaphoreIpc>()
-        .map_err(|e| BusError::ipc("creating a node with semaphore events", e))
+        .map_err(|e| ipc("creating a node with semaphore events", e))
 }
 
 /// The next stage and up to [`MAX_OBSERVERS`] readers that only look.
@@ -74,29 +83,29 @@ fn open_data<T: ZeroCopySend + Debug + Copy + 'static>(
     node: &Node<SemaphoreIpc>,
     name: &str,
 ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<SemaphoreIpc, T, ()>, BusError> {
-    let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
+    let service_name = ServiceName::new(name).map_err(|e| ipc(format!("service name {name}"), e))?;
     node.service_builder(&service_name)
         .publish_subscribe::<T>()
         .history_size(1)
         .subscriber_max_buffer_size(4)
         .max_subscribers(MAX_SUBSCRIBERS)
         .open_or_create()
-        .map_err(|e| BusError::ipc(format!("opening {name}"), e))
+        .map_err(|e| ipc(format!("opening {name}"), e))
 }
 
 fn open_event(
     node: &Node<SemaphoreIpc>,
     name: &str,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<SemaphoreIpc>, BusError> {
-    let service_name = ServiceName::new(name).map_err(|e| BusError::ipc(format!("service name {name}"), e))?;
+    let service_name = ServiceName::new(name).map_err(|e| ipc(format!("service name {name}"), e))?;
     node.service_builder(&service_name)
         .event()
         .event_id_max_value(0)
         .open_or_create()
-        .map_err(|e| BusError::ipc(format!("opening event {name}"), e))
+        .map_err(|e| ipc(format!("opening event {name}"), e))
 }
 
-/// Publishes and notifies, as [`crate::Outlet`].
+/// Publishes and notifies, as [`hydractl_bus::Outlet`].
 pub struct SemaphoreOutlet<T: ZeroCopySend + Debug + Copy + 'static> {
     publisher: Publisher<SemaphoreIpc, T, ()>,
     notifier: Notifier<SemaphoreIpc>,
@@ -108,21 +117,21 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreOutlet<T> {
             publisher: open_data::<T>(node, name)?
                 .publisher_builder()
                 .create()
-                .map_err(|e| BusError::ipc(format!("publisher on {name}"), e))?,
+                .map_err(|e| ipc(format!("publisher on {name}"), e))?,
             notifier: open_event(node, name)?
                 .notifier_builder()
                 .create()
-                .map_err(|e| BusError::ipc(format!("notifier on {name}"), e))?,
+                .map_err(|e| ipc(format!("notifier on {name}"), e))?,
         })
     }
 
     pub fn publish(&self, value: T) -> Result<(), BusError> {
         self.publisher
             .send_copy(value)
-            .map_err(|e| BusError::ipc("send with semaphore events", e))?;
+            .map_err(|e| ipc("send with semaphore events", e))?;
         self.notifier
             .notify()
-            .map_err(|e| BusError::ipc("notify with semaphore events", e))?;
+            .map_err(|e| ipc("notify with semaphore events", e))?;
         Ok(())
     }
 }
@@ -136,7 +145,7 @@ impl SemaphoreWaker {
         let notifier = open_event(node, name)?
             .notifier_builder()
             .create()
-            .map_err(|e| BusError::ipc(format!("waker on {name}"), e))?;
+            .map_err(|e| ipc(format!("waker on {name}"), e))?;
         Ok(Self(notifier))
     }
 
@@ -144,12 +153,12 @@ impl SemaphoreWaker {
         self.0
             .notify()
             .map(|_| ())
-            .map_err(|e| BusError::ipc("waking with semaphore events", e))
+            .map_err(|e| ipc("waking with semaphore events", e))
     }
 }
 
 /// Receives samples by polling, with no listener: publishers do not wake
-/// it, as [`crate::Reader`].
+/// it, as [`hydractl_bus::Reader`].
 pub struct SemaphoreReader<T: ZeroCopySend + Debug + Copy + 'static> {
     subscriber: Subscriber<SemaphoreIpc, T, ()>,
 }
@@ -161,7 +170,7 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreReader<T> {
                 .subscriber_builder()
                 .buffer_size(4)
                 .create()
-                .map_err(|e| BusError::ipc(format!("subscriber on {name}"), e))?,
+                .map_err(|e| ipc(format!("subscriber on {name}"), e))?,
         })
     }
 
@@ -169,7 +178,7 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreReader<T> {
         self.subscriber
             .receive()
             .map(|sample| sample.map(|s| *s.payload()))
-            .map_err(|e| BusError::ipc("receive with semaphore events", e))
+            .map_err(|e| ipc("receive with semaphore events", e))
     }
 }
 
@@ -186,7 +195,7 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreInlet<T> {
             listener: open_event(node, name)?
                 .listener_builder()
                 .create()
-                .map_err(|e| BusError::ipc(format!("listener on {name}"), e))?,
+                .map_err(|e| ipc(format!("listener on {name}"), e))?,
         })
     }
 
@@ -194,7 +203,7 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> SemaphoreInlet<T> {
     pub fn wait(&self) -> Result<(), BusError> {
         match self.listener.blocking_wait(|_| {}) {
             Ok(_) | Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => Ok(()),
-            Err(e) => Err(BusError::ipc("waiting with semaphore events", e)),
+            Err(e) => Err(ipc("waiting with semaphore events", e)),
         }
     }
 

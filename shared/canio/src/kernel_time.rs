@@ -53,7 +53,7 @@ fn realtime_to_monotonic(stamp: TimeSpec) -> u64 {
         clock_gettime(ClockId::CLOCK_REALTIME),
         clock_gettime(ClockId::CLOCK_MONOTONIC),
     ) else {
-        return crate::clock::now_ns();
+        return hydractl_bus::clock::now_ns();
     };
     (ns(stamp) - (ns(real) - ns(mono))).max(0) as u64
 }
@@ -83,12 +83,12 @@ mod tests {
             Ok(None),
             "nothing waits"
         );
-        let sent_ns = crate::clock::now_ns();
+        let sent_ns = hydractl_bus::clock::now_ns();
         sender
             .send_to(&[7; 16], receiver.local_addr().expect("address"))
             .expect("send");
         std::thread::sleep(Duration::from_millis(30));
-        let read_ns = crate::clock::now_ns();
+        let read_ns = hydractl_bus::clock::now_ns();
         let (len, stamp) = receive(receiver.as_fd(), &mut buf, &mut control)
             .expect("receive")
             .expect("a datagram");

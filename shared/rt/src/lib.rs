@@ -2,6 +2,14 @@
 //! about 25 µs per hop on a small virtual machine, so the loop's processes
 //! share one CPU and everything else stays off it; at a real-time priority
 //! no ordinary process delays them.
+//!
+//! What it holds: pinning a process to the loop's CPU or off it, real-time
+//! priority, locked memory and a process's page faults, the kernel's CPU
+//! lists (`CpuList`), and what a run reserves of the computer
+//! (`reserve_for_run`: the CPUs' idle exit latency through the PM QoS
+//! request, device interrupts steered off the loop's CPU, recorded in
+//! `/run/hydractl-interrupts` until put back). No IPC: the bus is
+//! `hydractl-bus`'s.
 
 use nix::sched::{sched_setaffinity, CpuSet};
 use nix::unistd::Pid;
