@@ -340,6 +340,9 @@ pub fn bench_foreign(
         .map_or(1, |n| n.get())
         .min(jobs.len().max(1));
     let next = std::sync::atomic::AtomicUsize::new(0);
+    let finished = std::sync::atomic::AtomicUsize::new(0);
+    let progress = crate::progress::Progress::new("bench foreign", json);
+    progress.step("simulating and diagnosing the plants", 0, jobs.len());
     let results: Vec<(usize, Result<ForeignRun>)> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..workers)
             .map(|_| {
@@ -350,6 +353,8 @@ pub fn bench_foreign(
                         let Some(&(c, i)) = jobs.get(j) else { break };
                         let case = &cases[c];
                         done.push((j, run_one(case, plant_seed(case, i), bench, save_data)));
+                        let finished = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                        progress.step(&format!("{} diagnosed", case_name(case)), finished, jobs.len());
                     }
                     done
                 })
@@ -362,6 +367,7 @@ pub fn bench_foreign(
         all.sort_by_key(|(j, _)| *j);
         all
     });
+    drop(progress);
     let mut summary: Vec<ForeignCase> = cases
         .iter()
         .map(|case| ForeignCase {

@@ -207,7 +207,14 @@ fn fit(args: FitArgs) -> Result<()> {
     progress.step("fitting the baseline", 0, steps);
     let mut model = greybox::fit_baseline(&signals, &prior, options)
         .with_context(|| format!("fitting the baseline to {}", args.data.data.display()))?;
-    let mut text = format!("baseline: {}\n", errors_line(&model));
+    let mut text = String::new();
+    if !signals.has_command {
+        text += &format!(
+            "{}: no valve command (`u`): the mechanical half is fitted from the measured pressures or torque, the hydraulic half (valve to pressures) stays the prior's\n",
+            args.data.data.display()
+        );
+    }
+    text += &format!("baseline: {}\n", errors_line(&model));
     for (i, kind) in kinds.into_iter().enumerate() {
         progress.step(&format!("adding {kind}"), 1 + i, steps);
         model = greybox::fit(&signals, &model, kind, options)
