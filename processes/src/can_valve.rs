@@ -31,15 +31,15 @@ const RESET_SETTLE_NS: u64 = 50_000_000;
 /// While the master drives the valve, a status answers every SYNC: none
 /// for this long is a valve that stopped answering (this computer's own
 /// stalls reach 33 ms).
-pub const STATUS_TIMEOUT_NS: u64 = 100_000_000;
+pub(crate) const STATUS_TIMEOUT_NS: u64 = 100_000_000;
 /// Nothing at all from the valve this long after the master started: no
 /// valve on the bus (a node ID that is not the valve's, a cut cable).
-pub const NEVER_HEARD_NS: u64 = 2_000_000_000;
+pub(crate) const NEVER_HEARD_NS: u64 = 2_000_000_000;
 /// A frame the bus refuses (a full transmit queue) is tried again at once,
 /// this many times in all; only a run of [`FAILED_WRITES_FAULT`] frames
 /// that could not be sent is a fault.
 const WRITE_ATTEMPTS: u32 = 3;
-pub const FAILED_WRITES_FAULT: u32 = 5;
+pub(crate) const FAILED_WRITES_FAULT: u32 = 5;
 
 /// What a reset did, in words, or why it was refused.
 pub type ResetAnswer = std::result::Result<String, String>;
@@ -280,10 +280,6 @@ impl CanValve {
         self.latch.latched()
     }
 
-    pub fn active(&self) -> bool {
-        self.master.active()
-    }
-
     /// The device's state in words.
     pub fn state_name(&self) -> &'static str {
         self.master.state().map_or("not heard", DeviceState::name)
@@ -291,14 +287,6 @@ impl CanValve {
 
     pub fn resets(&self) -> u32 {
         self.resets
-    }
-
-    pub fn emcys(&self) -> u64 {
-        self.master.emcys()
-    }
-
-    pub fn latch_path(&self) -> &std::path::Path {
-        self.latch.path()
     }
 }
 

@@ -142,7 +142,7 @@ mod tests {
 /// inputs, then computes reading k + 1 itself, as if it had been running.
 /// The two processes wake on the same input in either order, so the match
 /// is looked for both before and after this period's computation.
-pub struct Tracker<I: Copy> {
+pub(crate) struct Tracker<I: Copy> {
     inputs: Option<(u64, I)>,
     running: Option<(u64, f64)>,
     tracked: Option<u64>,
@@ -212,7 +212,7 @@ mod tracker_tests {
 /// it, or, when the stream has stopped (a lost machine), after a short
 /// deadline.
 #[derive(Debug)]
-pub struct PlantSeat {
+pub(crate) struct PlantSeat {
     pid: u32,
     started_ns: u64,
     in_charge: bool,
@@ -229,7 +229,7 @@ struct PendingTake {
 
 /// What a plant does this period.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SeatChange {
+pub(crate) enum SeatChange {
     /// Take the seat: publish readings from `at_seq` on.
     Take { at_seq: u64 },
     /// Leave it: publish no more loop readings.

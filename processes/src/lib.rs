@@ -47,7 +47,7 @@ use hydractl_config::Config;
 use hydractl_samples::SensorSample;
 use hydractl_stages::SensorEstimate;
 
-pub mod can_sensors;
+mod can_sensors;
 pub mod can_valve;
 pub mod handover;
 pub mod live_plant;
@@ -203,7 +203,7 @@ pub struct Started {
 /// priority from reading `SEQ` on, as a controller stuck in a busy loop
 /// would. Only a process that saw the readings before `SEQ` spins, so the
 /// one restarted in its place does not.
-pub const INJECT_FAULT_ENV: &str = "HYDRACTL_INJECT_FAULT";
+pub(crate) const INJECT_FAULT_ENV: &str = "HYDRACTL_INJECT_FAULT";
 
 /// A fault injected through [`INJECT_FAULT_ENV`], if it names this process.
 #[derive(Debug, Default)]
@@ -232,7 +232,7 @@ impl InjectedFault {
 
     /// Called with every reading the process answers: from the injected
     /// one on, it never returns.
-    pub fn at_reading(&self, seq: u64) {
+    pub(crate) fn at_reading(&self, seq: u64) {
         let Some(at) = self.spin_at else { return };
         if seq < at {
             self.saw_before.set(true);

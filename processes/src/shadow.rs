@@ -122,7 +122,7 @@ impl Rows {
     }
 
     /// A mark of now, for [`Rows::since`].
-    pub fn mark(&self) -> u64 {
+    pub(crate) fn mark(&self) -> u64 {
         self.accepted
     }
 
@@ -133,7 +133,7 @@ impl Rows {
     }
 
     /// The time of the newest row, s on the loop's clock.
-    pub fn newest_t(&self) -> Option<f64> {
+    pub(crate) fn newest_t(&self) -> Option<f64> {
         self.rows.back().map(|r| r[0])
     }
 

@@ -16,8 +16,8 @@ use hydractl_bus::clock::unix_now_s;
 use serde::{Deserialize, Serialize};
 
 /// Resets within [`RESET_WINDOW_S`] after which another is refused.
-pub const MAX_RESETS: usize = 3;
-pub const RESET_WINDOW_S: f64 = 600.0;
+pub(crate) const MAX_RESETS: usize = 3;
+pub(crate) const RESET_WINDOW_S: f64 = 600.0;
 
 /// Where a run keeps what must outlive it: `HYDRACTL_STATE_DIR`, else
 /// systemd's `STATE_DIRECTORY` (the unit's `StateDirectory=`), else
@@ -63,7 +63,7 @@ struct LatchFile {
 
 /// Why a reset was refused.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Refusal {
+pub(crate) enum Refusal {
     NothingLatched,
     NeedsService { resets: usize, window_s: f64 },
 }
@@ -112,17 +112,13 @@ impl FaultLatch {
         Ok(latch)
     }
 
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
     pub fn latched(&self) -> Option<&LatchedFault> {
         self.file.fault.as_ref()
     }
 
     /// Latches a fault and writes it down; a fault already latched stays
     /// the one reported (the first cause, not its consequences).
-    pub fn latch(&mut self, code: u32, meaning: String) -> Result<()> {
+    pub(crate) fn latch(&mut self, code: u32, meaning: String) -> Result<()> {
         if self.file.fault.is_some() {
             return Ok(());
         }
@@ -135,7 +131,7 @@ impl FaultLatch {
     }
 
     /// Whether a reset is allowed now, and which fault it clears.
-    pub fn may_reset(&self, serviced: bool, now_unix_s: f64) -> Result<LatchedFault, Refusal> {
+    pub(crate) fn may_reset(&self, serviced: bool, now_unix_s: f64) -> Result<LatchedFault, Refusal> {
         let Some(fault) = &self.file.fault else {
             return Err(Refusal::NothingLatched);
         };

@@ -378,15 +378,6 @@ impl Observer {
         self.wait_clean_valve(cycles, timeout, true)
     }
 
-    /// Waits for `samples` valve outputs without a fault, not necessarily
-    /// in a row: a valve process that drives again. On CAN a loaded machine
-    /// makes some sensor PDOs late, and each flags its cycle (about 60 a
-    /// second under two busy loops on 2026-11-26), so a run of a thousand
-    /// clean cycles may never come while the valve drives.
-    pub fn wait_driving(&self, samples: usize, timeout: Duration) -> bool {
-        self.wait_clean_valve(samples, timeout, false)
-    }
-
     /// Waits for `count` valve outputs without a fault, `in_a_row` or not.
     fn wait_clean_valve(&self, count: usize, timeout: Duration, in_a_row: bool) -> bool {
         let deadline = Instant::now() + timeout;
@@ -652,7 +643,7 @@ impl RecordedRun {
 /// so a sample the recording lacks is excused when it was the last its
 /// publisher sent (the witness saw no successor) and the run counted a
 /// fault for each one excused.
-pub fn assert_recorded_everything(
+pub(crate) fn assert_recorded_everything(
     seen: &BTreeMap<&'static str, BTreeSet<u64>>,
     recording: &Path,
     summary: &serde_json::Value,

@@ -14,7 +14,7 @@ use nix::unistd::Pid;
 /// The processes of the loop, in pipeline order, with the service each
 /// publishes (its heartbeat) and the one it consumes: the one before its
 /// own, and for the plant the valve's.
-pub const PIPELINE: [(&str, &str, &str); 6] = {
+pub(crate) const PIPELINE: [(&str, &str, &str); 6] = {
     use hydractl_samples::service::{PIPELINE_PROCESSES, PIPELINE_SERVICES};
     let n = PIPELINE_PROCESSES.len();
     let mut pipeline = [("", "", ""); 6];
@@ -30,16 +30,9 @@ pub const PIPELINE: [(&str, &str, &str); 6] = {
     pipeline
 };
 
-/// Why a child is down.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DownReason {
-    Exited,
-    Hung,
-}
-
 /// One supervised process.
 #[derive(Debug)]
-pub struct Supervised {
+pub(crate) struct Supervised {
     pub name: &'static str,
     binary: PathBuf,
     config: Option<PathBuf>,

@@ -25,8 +25,7 @@ use hydractl_samples::{
     code, fault, service, source, PlantReading, SupervisorReply, SupervisorRequest, SupervisorStatus,
 };
 
-pub use child::{DownReason, Supervised, PIPELINE};
-pub use valve_log::{Rejected, SwitchQuality, ValveLog, TRANSIENT};
+use child::{Supervised, PIPELINE};
 
 use faults::{after_limit_cycle, blamed_for_rejections, cpu_times, is_hung, Comeback, CpuWatch, Fault, Liveness};
 use heartbeats::{Heartbeats, OuterLoopWatch};

@@ -5,7 +5,7 @@ use std::collections::VecDeque;
 
 /// The valve's recent samples: `(sensor_seq, command, faults)`.
 #[derive(Debug)]
-pub struct ValveLog {
+pub(crate) struct ValveLog {
     entries: VecDeque<(u64, f64, u32)>,
     capacity: usize,
 }

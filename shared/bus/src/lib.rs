@@ -46,7 +46,7 @@ pub const PROCESS_DIR_ENV: &str = "HYDRACTL_PROCESS_DIR";
 /// Where the installed package keeps the process binaries, relative to the
 /// folder of `hydractl` (`/usr/bin` → `/usr/lib/hydractl`): the processes'
 /// plain names (`sensor`, `valve`) stay off the `PATH`.
-pub const INSTALLED_PROCESS_DIR: &str = "../lib/hydractl";
+pub(crate) const INSTALLED_PROCESS_DIR: &str = "../lib/hydractl";
 
 /// The binary every process folder holds; the others sit beside it.
 const SUPERVISOR: &str = "supervisor";

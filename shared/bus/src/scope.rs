@@ -97,7 +97,7 @@ impl RunScope {
     }
 
     /// How many nodes of this run are alive.
-    pub fn live_nodes(&self) -> Result<usize, BusError> {
+    pub(crate) fn live_nodes(&self) -> Result<usize, BusError> {
         let mut alive = 0;
         self.each_node(|state| {
             if let NodeState::Alive(_) = state {
@@ -203,7 +203,7 @@ impl RunScope {
     /// write (iceoryx2 needs both), or the shared folder above them when
     /// this user cannot reach or make the run's folder in it, as a
     /// [`BusError::Permission`] naming the file, its owner and the fix.
-    pub fn permission_problem(&self) -> Option<BusError> {
+    pub(crate) fn permission_problem(&self) -> Option<BusError> {
         use nix::unistd::{access, AccessFlags};
         let parent = std::path::Path::new(IPC_ROOT);
         let needs = if self.root().exists() {

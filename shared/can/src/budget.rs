@@ -38,7 +38,7 @@ pub struct Budget {
 impl Profile {
     /// The frames of one period: SYNC, the three sensors' TPDOs, the
     /// valve's set point and its answer.
-    pub fn period_frames(&self) -> Vec<(String, u16, u8)> {
+    pub(crate) fn period_frames(&self) -> Vec<(String, u16, u8)> {
         vec![
             ("SYNC".to_string(), self.sync_cob_id, 0),
             (

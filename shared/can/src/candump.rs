@@ -26,7 +26,7 @@ pub struct LoggedFrame {
 }
 
 /// `ID#DATA` as can-utils writes it.
-pub fn frame_text(frame: &Frame) -> String {
+pub(crate) fn frame_text(frame: &Frame) -> String {
     let id = if frame.is_error() {
         format!("{:08X}", frame.id | CAN_ERR_FLAG)
     } else if frame.is_extended() {
@@ -61,7 +61,7 @@ pub fn line(time_ns: u64, interface: &str, frame: &Frame) -> String {
 
 /// Reads one line; `number` (from 1) names it in an error. Lines that do
 /// not start with `(` are comments to `canplayer`: `Ok(None)`.
-pub fn parse_line(number: usize, text: &str) -> Result<Option<LoggedFrame>, CandumpError> {
+pub(crate) fn parse_line(number: usize, text: &str) -> Result<Option<LoggedFrame>, CandumpError> {
     let trimmed = text.trim();
     if !trimmed.starts_with('(') {
         return Ok(None);

@@ -8,14 +8,6 @@ use crate::{CanError, Frame};
 /// A CANopen node ID, 1 to 127.
 pub type NodeId = u8;
 
-pub fn check_node(node: NodeId) -> Result<NodeId, CanError> {
-    if (1..=127).contains(&node) {
-        Ok(node)
-    } else {
-        Err(CanError::BadNode { node })
-    }
-}
-
 /// The predefined connection set.
 pub mod cob_id {
     use super::NodeId;
@@ -33,15 +25,15 @@ pub mod cob_id {
         EMCY + u16::from(node)
     }
     /// TPDO `n` (1 to 4): sent by the node.
-    pub fn tpdo(n: u8, node: NodeId) -> u16 {
+    pub(crate) fn tpdo(n: u8, node: NodeId) -> u16 {
         TPDO[usize::from(n.clamp(1, 4) - 1)] + u16::from(node)
     }
     /// RPDO `n` (1 to 4): received by the node.
-    pub fn rpdo(n: u8, node: NodeId) -> u16 {
+    pub(crate) fn rpdo(n: u8, node: NodeId) -> u16 {
         RPDO[usize::from(n.clamp(1, 4) - 1)] + u16::from(node)
     }
     /// Client → server (the node receives).
-    pub fn sdo_request(node: NodeId) -> u16 {
+    pub(crate) fn sdo_request(node: NodeId) -> u16 {
         SDO_REQUEST + u16::from(node)
     }
     /// Server → client (the node answers).
@@ -112,7 +104,7 @@ pub fn nmt(command: NmtCommand, node: u8) -> Frame {
 }
 
 /// The command and its node (0 = all).
-pub fn decode_nmt(frame: &Frame) -> Result<(NmtCommand, u8), CanError> {
+pub(crate) fn decode_nmt(frame: &Frame) -> Result<(NmtCommand, u8), CanError> {
     if frame.id != u32::from(cob_id::NMT) || frame.is_extended() {
         return Err(CanError::NotA {
             cob_id: frame.id,
@@ -210,13 +202,13 @@ pub struct Emergency {
 
 /// Emergency codes this stack's devices send (CiA 301 and the valve's).
 pub mod emcy_code {
-    pub const NO_ERROR: u16 = 0x0000;
-    pub const CAN_OVERRUN: u16 = 0x8110;
-    pub const CAN_ERROR_PASSIVE: u16 = 0x8120;
-    pub const HEARTBEAT_LOST: u16 = 0x8130;
-    pub const BUS_OFF_RECOVERED: u16 = 0x8140;
-    pub const PDO_LENGTH: u16 = 0x8210;
-    pub const RPDO_TIMEOUT: u16 = 0x8250;
+    pub(crate) const NO_ERROR: u16 = 0x0000;
+    pub(crate) const CAN_OVERRUN: u16 = 0x8110;
+    pub(crate) const CAN_ERROR_PASSIVE: u16 = 0x8120;
+    pub(crate) const HEARTBEAT_LOST: u16 = 0x8130;
+    pub(crate) const BUS_OFF_RECOVERED: u16 = 0x8140;
+    pub(crate) const PDO_LENGTH: u16 = 0x8210;
+    pub(crate) const RPDO_TIMEOUT: u16 = 0x8250;
     /// Danfoss PVED-CC: "RPDO not received within timeout".
     pub const VALVE_RPDO_TIMEOUT: u16 = 0x81FF;
 }
@@ -442,7 +434,7 @@ impl SdoResponse {
 }
 
 /// CiA 301's SDO abort codes, in words.
-pub fn abort_description(code: u32) -> &'static str {
+pub(crate) fn abort_description(code: u32) -> &'static str {
     match code {
         0x0503_0000 => "toggle bit not alternated",
         0x0504_0000 => "SDO protocol timed out",
@@ -489,7 +481,7 @@ impl MapEntry {
         Self { index, sub, bits }
     }
 
-    pub const fn from_u32(mapping: u32) -> Self {
+    pub(crate) const fn from_u32(mapping: u32) -> Self {
         Self {
             index: (mapping >> 16) as u16,
             sub: (mapping >> 8) as u8,
@@ -497,13 +489,8 @@ impl MapEntry {
         }
     }
 
-    pub const fn to_u32(self) -> u32 {
+    pub(crate) const fn to_u32(self) -> u32 {
         ((self.index as u32) << 16) | ((self.sub as u32) << 8) | self.bits as u32
-    }
-
-    /// CiA 301's dummy entries (indices 0x0002 to 0x0007) fill space.
-    pub fn is_dummy(&self) -> bool {
-        (0x0002..=0x0007).contains(&self.index)
     }
 }
 
@@ -570,7 +557,7 @@ impl PdoMapping {
 
     /// A PDO frame carrying `values`, one raw (two's complement) value per
     /// entry, each truncated to its entry's width.
-    pub fn pack(&self, cob_id: u16, values: &[u64]) -> Result<Frame, CanError> {
+    pub(crate) fn pack(&self, cob_id: u16, values: &[u64]) -> Result<Frame, CanError> {
         if values.len() != self.entries().len() {
             return Err(CanError::Mapping {
                 reason: format!("{} values for {} mapped objects", values.len(), self.count),

@@ -15,7 +15,7 @@ use crate::valve::{self, object as valve_object, DeviceState, StateMachine};
 use crate::Frame;
 
 /// Frames one ECU may send in answer to one event.
-pub const OUTBOX: usize = 4;
+pub(crate) const OUTBOX: usize = 4;
 
 /// What an ECU sends in answer to one frame or tick; fixed size.
 #[derive(Debug, Clone, Copy, Default)]
@@ -134,14 +134,14 @@ impl NodeCore {
 /// The heartbeat producer time a node boots with until the master sets
 /// its own (the PVED-CC's default): longer than the master's consumer
 /// timeout, so a master that forgets to set it finds every node lost.
-pub const FACTORY_HEARTBEAT_MS: u16 = 1000;
+pub(crate) const FACTORY_HEARTBEAT_MS: u16 = 1000;
 
 /// Object 0x1400 + n − 1: RPDO n's communication parameters.
-pub const RPDO_COMMUNICATION: u16 = 0x1400;
+pub(crate) const RPDO_COMMUNICATION: u16 = 0x1400;
 /// Its sub-index 5, the event timer: for an RPDO, CiA 301's deadline
 /// monitoring (no PDO for this long: EMCY 0x8250, and the device's fault
 /// reaction), ms (UNSIGNED16).
-pub const RPDO_EVENT_TIMER: u8 = 5;
+pub(crate) const RPDO_EVENT_TIMER: u8 = 5;
 /// SDO abort: the object does not exist in the object dictionary.
 const NO_SUCH_OBJECT: u32 = 0x0602_0000;
 

@@ -86,7 +86,7 @@ impl Frame {
     }
 
     /// A data frame with a 29-bit identifier.
-    pub fn extended(id: u32, data: &[u8]) -> Result<Self, CanError> {
+    pub(crate) fn extended(id: u32, data: &[u8]) -> Result<Self, CanError> {
         if id > Self::MAX_EXTENDED_ID {
             return Err(CanError::IdOutOfRange { id, bits: 29 });
         }
@@ -94,7 +94,7 @@ impl Frame {
     }
 
     /// A remote request for `len` bytes.
-    pub fn remote(id: u16, len: u8) -> Result<Self, CanError> {
+    pub(crate) fn remote(id: u16, len: u8) -> Result<Self, CanError> {
         let mut frame = Self::new(id, &[])?;
         if len > 8 {
             return Err(CanError::TooLong {
@@ -178,7 +178,7 @@ impl Frame {
     }
 
     /// Demands exactly `expected` data bytes, naming the frame otherwise.
-    pub fn expect_len(&self, expected: usize, what: &'static str) -> Result<&[u8], CanError> {
+    pub(crate) fn expect_len(&self, expected: usize, what: &'static str) -> Result<&[u8], CanError> {
         if usize::from(self.len) != expected {
             return Err(CanError::WrongLength {
                 cob_id: self.id,

@@ -6,7 +6,7 @@ use crate::canopen::{decode_heartbeat, NmtState, NodeId, SdoRequest};
 use crate::Frame;
 
 /// Object 0x1017: the heartbeat producer time, ms (UNSIGNED16).
-pub const HEARTBEAT_PRODUCER: u16 = 0x1017;
+pub(crate) const HEARTBEAT_PRODUCER: u16 = 0x1017;
 
 /// The master's SDO download of a node's heartbeat producer time.
 pub fn set_heartbeat(node: NodeId, heartbeat_ms: u16) -> Frame {
@@ -23,7 +23,7 @@ pub fn set_heartbeat(node: NodeId, heartbeat_ms: u16) -> Frame {
 /// when, and whether it has been silent too long (CiA 301's heartbeat
 /// consumer).
 #[derive(Debug, Clone, Copy)]
-pub struct HeartbeatWatch {
+pub(crate) struct HeartbeatWatch {
     node: NodeId,
     timeout_ns: u64,
     last_ns: Option<u64>,

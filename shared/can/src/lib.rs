@@ -45,4 +45,5 @@ pub mod timing;
 pub mod valve;
 pub mod wire;
 
-pub use frame::{error_class, CanError, Frame};
+pub(crate) use frame::error_class;
+pub use frame::{CanError, Frame};

@@ -7,12 +7,12 @@ use serde::{Deserialize, Serialize};
 use crate::CanError;
 
 pub mod object {
-    pub const PROCESS_VALUE_REAL32: u16 = 0x6130;
+    pub(crate) const PROCESS_VALUE_REAL32: u16 = 0x6130;
     pub const PHYSICAL_UNIT: u16 = 0x6131;
     pub const DECIMAL_DIGITS: u16 = 0x6132;
     pub const STATUS: u16 = 0x6150;
-    pub const PROCESS_VALUE_INT16: u16 = 0x7130;
-    pub const PROCESS_VALUE_INT32: u16 = 0x9130;
+    pub(crate) const PROCESS_VALUE_INT16: u16 = 0x7130;
+    pub(crate) const PROCESS_VALUE_INT32: u16 = 0x9130;
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -24,7 +24,7 @@ pub enum ValueType {
 }
 
 impl ValueType {
-    pub fn object(self) -> u16 {
+    pub(crate) fn object(self) -> u16 {
         match self {
             Self::Int16 => object::PROCESS_VALUE_INT16,
             Self::Int32 => object::PROCESS_VALUE_INT32,
@@ -55,7 +55,7 @@ pub enum PressureUnit {
 }
 
 impl PressureUnit {
-    pub fn pascal(self) -> f64 {
+    pub(crate) fn pascal(self) -> f64 {
         match self {
             Self::Pascal => 1.0,
             Self::KiloPascal => 1e3,
@@ -120,7 +120,7 @@ impl PressureScale {
     }
 
     /// The pressure in Pa from the raw value a PDO carries.
-    pub fn pascal(&self, raw: u64) -> Result<f64, CanError> {
+    pub(crate) fn pascal(&self, raw: u64) -> Result<f64, CanError> {
         let value = match self.value_type {
             ValueType::Int16 => f64::from(raw as u16 as i16),
             ValueType::Int32 => f64::from(raw as u32 as i32),

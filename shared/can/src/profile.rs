@@ -543,7 +543,7 @@ fn pressure_channel(section: &str, node: &PressureNode) -> Result<PressureChanne
 
 impl Profile {
     /// Every COB-ID the stack sends or receives, named.
-    pub fn cob_ids(&self) -> Vec<(u16, String)> {
+    pub(crate) fn cob_ids(&self) -> Vec<(u16, String)> {
         let mut ids = vec![(cob_id::NMT, "NMT".to_string()), (self.sync_cob_id, "SYNC".to_string())];
         let devices = [
             ("valve", self.valve),

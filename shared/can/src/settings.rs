@@ -13,9 +13,9 @@ use crate::{CanError, Frame};
 
 /// How long a node has to answer an SDO request: CiA 301 leaves it to the
 /// application; the devices here answer within a millisecond.
-pub const ANSWER_TIMEOUT_NS: u64 = 50_000_000;
+pub(crate) const ANSWER_TIMEOUT_NS: u64 = 50_000_000;
 /// Requests sent before a silent node is given up on.
-pub const ATTEMPTS: u8 = 3;
+pub(crate) const ATTEMPTS: u8 = 3;
 
 /// One object to set, and what it is, in words.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,7 +36,7 @@ enum Step {
 
 /// Writes each setting in turn and reads it back.
 #[derive(Debug, Clone)]
-pub struct SettingsCheck<const N: usize> {
+pub(crate) struct SettingsCheck<const N: usize> {
     node: NodeId,
     settings: [Setting; N],
     current: usize,

@@ -7,7 +7,7 @@
 //! valve was following a set point (Active and driven).
 
 /// A set point this far from neutral has a sign the spool must share.
-pub const SIGNED_SET_POINT: f64 = 0.1;
+pub(crate) const SIGNED_SET_POINT: f64 = 0.1;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SpoolFault {

@@ -43,13 +43,13 @@ pub fn frame_bits(frame: &Frame) -> u32 {
 
 /// The most bits a frame of `len` bytes can take: a stuff bit after the
 /// first five bits and then every four.
-pub fn worst_case_bits(len: u8, extended: bool) -> u32 {
+pub(crate) fn worst_case_bits(len: u8, extended: bool) -> u32 {
     let stuffable = (if extended { 54 } else { 34 }) + 8 * u32::from(len.min(8));
     stuffable + (stuffable - 1) / 4 + UNSTUFFED_TAIL
 }
 
 /// The fewest: no stuffing.
-pub fn unstuffed_bits(len: u8, extended: bool) -> u32 {
+pub(crate) fn unstuffed_bits(len: u8, extended: bool) -> u32 {
     (if extended { 67 } else { 47 }) + 8 * u32::from(len.min(8))
 }
 

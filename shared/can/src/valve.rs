@@ -24,7 +24,7 @@
 use crate::CanError;
 
 /// The valve's objects.
-pub mod object {
+pub(crate) mod object {
     pub const DEVICE_TYPE: u16 = 0x1000;
     pub const DEVICE_TYPE_VALUE: u32 = 0x198;
     pub const CONTROL_WORD: u16 = 0x6040;
@@ -40,16 +40,16 @@ pub mod object {
 
 /// Control words a master sends (R kept high but for a fault reset).
 pub mod control_word {
-    pub const DISABLED_BIT: u16 = 0x01;
+    pub(crate) const DISABLED_BIT: u16 = 0x01;
     pub const HOLD_BIT: u16 = 0x02;
     pub const ACTIVE_BIT: u16 = 0x04;
     pub const RESET_FAULT_BIT: u16 = 0x08;
     pub const INIT: u16 = 0x08;
-    pub const DISABLED: u16 = 0x09;
+    pub(crate) const DISABLED: u16 = 0x09;
     pub const HOLD: u16 = 0x0B;
     pub const ACTIVE: u16 = 0x0F;
     /// R low; the next control word's R raises it and clears the fault.
-    pub const FAULT_RESET: u16 = 0x03;
+    pub(crate) const FAULT_RESET: u16 = 0x03;
 }
 
 /// The master's own fault codes for a valve, beside the valve's EMCY
@@ -86,7 +86,7 @@ pub fn fault_code_name(code: u32) -> String {
 }
 
 /// ±16384 is ±100 % spool travel.
-pub const FULL_SCALE: i16 = 16384;
+pub(crate) const FULL_SCALE: i16 = 16384;
 /// PVED-CC: a set point of 32767 commands the float position.
 pub const FLOAT: i16 = 32767;
 
@@ -160,7 +160,7 @@ impl DeviceState {
 
     /// Only in Active does the spool follow the set point; every other
     /// state holds it at neutral or at its hydraulic fail-safe position.
-    pub fn follows_set_point(self) -> bool {
+    pub(crate) fn follows_set_point(self) -> bool {
         self == Self::Active
     }
 
@@ -183,7 +183,7 @@ impl DeviceState {
 /// the control words it receives and the faults it detects. The simulated
 /// valve ECU runs it; the master's bring-up is tested against it.
 #[derive(Debug, Clone, Copy)]
-pub struct StateMachine {
+pub(crate) struct StateMachine {
     state: DeviceState,
     last_control_word: u16,
 }
@@ -260,7 +260,7 @@ impl StateMachine {
 /// Active: Init → Disabled → Hold → Active. `None` in a fault state: the
 /// bring-up stops there, and only [`RESET_WORDS`], sent on a person's
 /// command, clear the fault.
-pub fn next_control_word(state: DeviceState) -> Option<u16> {
+pub(crate) fn next_control_word(state: DeviceState) -> Option<u16> {
     match state {
         DeviceState::NotReady | DeviceState::Init => Some(control_word::DISABLED),
         DeviceState::Disabled => Some(control_word::HOLD),
@@ -273,7 +273,7 @@ pub fn next_control_word(state: DeviceState) -> Option<u16> {
 
 /// The deliberate fault reset: R low, then high (the rising edge), the
 /// spool kept at neutral (Hold).
-pub const RESET_WORDS: [u16; 2] = [control_word::FAULT_RESET, control_word::HOLD];
+pub(crate) const RESET_WORDS: [u16; 2] = [control_word::FAULT_RESET, control_word::HOLD];
 
 /// A NaN or out-of-range command is a programming error upstream; the
 /// frame carries neutral, and this names it for the caller's fault count.
@@ -289,7 +289,7 @@ pub fn checked_set_point(command: f64) -> Result<i16, CanError> {
 }
 
 /// The raw value of an INT16 object as a PDO carries it.
-pub fn raw_i16(value: i16) -> u64 {
+pub(crate) fn raw_i16(value: i16) -> u64 {
     u64::from(value as u16)
 }
 

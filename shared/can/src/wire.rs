@@ -11,16 +11,16 @@ use crate::Frame;
 
 /// Frames waiting for the bus at most; a full queue loses the frame and
 /// counts it, as a controller's full transmit buffer does.
-pub const PENDING: usize = 64;
+pub(crate) const PENDING: usize = 64;
 /// Stations that may be silenced at once.
 const SILENCED: usize = 8;
 /// An error flag (6), its superposition (up to 6) and delimiter (8), and
 /// the intermission (3).
 const ERROR_FRAME_BITS: u32 = 23;
-pub use crate::frame::error_class::PROTOCOL as ERROR_CLASS_PROTOCOL;
+use crate::frame::error_class::PROTOCOL as ERROR_CLASS_PROTOCOL;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Pending {
+pub(crate) struct Pending {
     pub frame: Frame,
     /// Who sent it (a process on the virtual bus).
     pub station: u32,
@@ -67,7 +67,7 @@ pub struct Wire {
 
 /// Lower wins arbitration: the arbitration field's bits as a number,
 /// dominant (0) first.
-pub fn arbitration_key(frame: &Frame) -> u64 {
+pub(crate) fn arbitration_key(frame: &Frame) -> u64 {
     let remote = u64::from(frame.is_remote());
     if frame.is_extended() {
         let base = u64::from(frame.id >> 18) & 0x7FF;
@@ -115,7 +115,7 @@ impl Wire {
         }
     }
 
-    pub fn is_silenced(&self, station: u32) -> bool {
+    pub(crate) fn is_silenced(&self, station: u32) -> bool {
         self.silenced.contains(&Some(station))
     }
 

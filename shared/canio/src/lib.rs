@@ -16,7 +16,7 @@ use hydractl_bus::{clock, Bus, BusError, Inlet, Input, Outlet};
 mod kernel_time;
 
 /// Filters a port holds at most.
-pub const MAX_FILTERS: usize = 16;
+pub(crate) const MAX_FILTERS: usize = 16;
 /// Frames the virtual port keeps for a process that is late to read.
 const VIRTUAL_RX_BUFFER: usize = 256;
 

@@ -153,7 +153,11 @@ impl ControlConfig {
     /// Builds every controller the structure in charge runs, with its
     /// configured variants, so that a parameter no controller accepts is
     /// found at load, named by its section.
-    pub fn check_controllers(&self, control_period: f64, load: LoadModel) -> Result<(), (&'static str, ControlError)> {
+    pub(crate) fn check_controllers(
+        &self,
+        control_period: f64,
+        load: LoadModel,
+    ) -> Result<(), (&'static str, ControlError)> {
         let ts = control_period;
         let within = |section: &'static str| move |e: ControlError| (section, e);
         VelocityEstimator::new(self.velocity_estimator, load, ts).map_err(within("control.velocity_estimator"))?;

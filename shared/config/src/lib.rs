@@ -30,7 +30,8 @@ pub use control::{
     ValveGuardParams, MAX_GUARD_PERIODS,
 };
 pub use deploy::{LogConfig, LogOutput, RecordingConfig, ShadowConfig};
-pub use supervisor::{OnLimitCycle, RestartPolicy, RestartRule, SupervisorConfig, SUPERVISED_PROCESSES};
+pub(crate) use supervisor::SUPERVISED_PROCESSES;
+pub use supervisor::{OnLimitCycle, RestartPolicy, RestartRule, SupervisorConfig};
 pub use timing::{StallPolicy, Timing};
 
 #[derive(Debug, thiserror::Error)]
@@ -309,7 +310,7 @@ impl Config {
     }
 }
 
-pub const DEFAULT_SIM_TOML: &str = include_str!("../../../config/sim.toml");
+pub(crate) const DEFAULT_SIM_TOML: &str = include_str!("../../../config/sim.toml");
 
 /// Merges `over` into `base`: tables key by key, anything else replaced.
 fn merge_tables(base: &mut toml::Table, over: toml::Table) {

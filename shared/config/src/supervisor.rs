@@ -91,7 +91,7 @@ pub enum OnLimitCycle {
 }
 
 /// The processes a supervisor's restart rules may name.
-pub const SUPERVISED_PROCESSES: [&str; 9] = [
+pub(crate) const SUPERVISED_PROCESSES: [&str; 9] = [
     "plant", "machine", "sensor", "friction", "position", "torque", "valve", "recorder", "shadow",
 ];
 

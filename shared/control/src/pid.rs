@@ -131,7 +131,7 @@ impl Pid {
 
     /// A start with nothing integrated, `error` remembered as the last one
     /// seen, so that the derivative starts from the motion, not a jump.
-    pub fn start_from(&mut self, error: f64) {
+    pub(crate) fn start_from(&mut self, error: f64) {
         self.reset();
         self.previous_error = Some(error);
     }

@@ -84,7 +84,7 @@ impl ValveShaper {
     }
 
     /// The dead-zone inverse alone.
-    pub fn invert_deadzone(&self, command: f64) -> f64 {
+    pub(crate) fn invert_deadzone(&self, command: f64) -> f64 {
         let w = self.params.deadzone_width;
         if w == 0.0 {
             return command;
@@ -99,7 +99,7 @@ impl ValveShaper {
 
     /// The asymmetric gain's inverse alone: the opening that gives a
     /// negative command's flow.
-    pub fn invert_asymmetry(&self, command: f64) -> f64 {
+    pub(crate) fn invert_asymmetry(&self, command: f64) -> f64 {
         if command < 0.0 {
             command * self.negative_scale
         } else {

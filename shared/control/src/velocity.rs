@@ -161,19 +161,6 @@ impl VelocityEstimator {
         }
     }
 
-    /// Starts from a known angle and velocity, e.g. a restarted sensor process.
-    pub fn initialize(&mut self, angle: f64, velocity: f64) {
-        self.previous_angle = Some(angle);
-        self.estimate = velocity;
-        if let Method::Observer {
-            angle: observed, load, ..
-        } = &mut self.method
-        {
-            *observed = angle;
-            *load = 0.0;
-        }
-    }
-
     /// One period: the angle (rad) and the torque (N·m) read. A non-finite
     /// angle is skipped: the estimate holds (the differentiator) or runs on
     /// the model (the observer) until a valid one; a non-finite torque

@@ -79,7 +79,7 @@ impl Dataset {
     }
 
     /// As [`Dataset::from_csv`], from text; `path` only names the source.
-    pub fn parse_csv(text: &str, path: &Path, required: &[&str]) -> Result<Self, DataError> {
+    pub(crate) fn parse_csv(text: &str, path: &Path, required: &[&str]) -> Result<Self, DataError> {
         let p = || path.to_owned();
         if text.trim().is_empty() {
             return Err(DataError::Empty { path: p() });

@@ -77,7 +77,7 @@ impl DiscreteSiso {
     }
 
     /// The output the system would give now for input `u`, without advancing.
-    pub fn peek(&self, u: f64) -> f64 {
+    pub(crate) fn peek(&self, u: f64) -> f64 {
         self.d * u + self.c.iter().zip(&self.x).map(|(c, x)| c * x).sum::<f64>()
     }
 

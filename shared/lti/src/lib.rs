@@ -22,7 +22,7 @@ mod transfer_function;
 pub use discrete::DiscreteSiso;
 pub use nalgebra::Complex;
 pub use poly::{poly_eval, poly_from_roots, poly_mul, poly_roots};
-pub use riccati::{matrix_sign, solve_care};
+pub use riccati::solve_care;
 pub use state_space::StateSpace;
 pub use transfer_function::TransferFunction;
 

@@ -28,7 +28,7 @@ const RESIDUAL_TOLERANCE: f64 = 1e-6;
 /// the sign of their real parts. Newton's iteration `Z ← (c Z + Z⁻¹/c)/2`,
 /// scaled by `c = |det Z|^(−1/n)` (computed from the LU factors' logarithms,
 /// so that it neither overflows nor underflows).
-pub fn matrix_sign(h: &DMatrix<f64>) -> Result<DMatrix<f64>, LtiError> {
+pub(crate) fn matrix_sign(h: &DMatrix<f64>) -> Result<DMatrix<f64>, LtiError> {
     let n = h.nrows();
     if n == 0 || h.ncols() != n {
         return Err(LtiError::Dimension(format!(

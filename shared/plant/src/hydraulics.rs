@@ -46,7 +46,7 @@ pub fn limit_spool(effects: &Effects, spool: &mut f64, spool_rate: &mut f64) {
 }
 
 /// Flow into chamber A and out of chamber B, m³/s (eq. 9, or orifice flow).
-pub fn chamber_flows(params: &PlantParams, effects: &Effects, spool: f64, p_a: f64, p_b: f64) -> (f64, f64) {
+pub(crate) fn chamber_flows(params: &PlantParams, effects: &Effects, spool: f64, p_a: f64, p_b: f64) -> (f64, f64) {
     let p = params;
     let mut opening = spool;
     if let Some(deadzone) = effects.deadzone {

@@ -14,8 +14,8 @@ use crate::PlantParams;
 pub type Motion = [f64; 4];
 pub const ANGLE: usize = 0;
 pub const VELOCITY: usize = 1;
-pub const LOAD_ANGLE: usize = 2;
-pub const LOAD_VELOCITY: usize = 3;
+pub(crate) const LOAD_ANGLE: usize = 2;
+pub(crate) const LOAD_VELOCITY: usize = 3;
 
 /// Everything acting on the actuator's rotor except Coulomb friction, N·m,
 /// given the hydraulic torque D (p_a − p_b): less viscous friction, the

@@ -119,11 +119,6 @@ impl PlantParams {
         }
         Ok(())
     }
-
-    /// The largest torque the actuator can make, D (p_s - p_t), N·m.
-    pub fn max_torque(&self) -> f64 {
-        self.displacement * (self.supply_pressure - self.tank_pressure)
-    }
 }
 
 /// Sensors as the rotary paper's lab has them.

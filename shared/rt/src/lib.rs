@@ -130,7 +130,7 @@ const CPU_DMA_LATENCY: &str = "/dev/cpu_dma_latency";
 /// kernel drops the request when the file closes, with the process or when
 /// this is dropped.
 #[derive(Debug)]
-pub struct IdleLatencyLimit {
+pub(crate) struct IdleLatencyLimit {
     _request: std::fs::File,
 }
 
@@ -141,7 +141,7 @@ pub struct IdleLatencyLimit {
 /// stages wake at every hop. The price is idle CPUs that draw power. Needs
 /// root; like pinning, a failure leaves the run going, for the caller to
 /// report.
-pub fn limit_idle_latency(max_us: Option<u32>) -> Result<Option<IdleLatencyLimit>, PlacementError> {
+pub(crate) fn limit_idle_latency(max_us: Option<u32>) -> Result<Option<IdleLatencyLimit>, PlacementError> {
     use std::io::Write;
     let Some(max_us) = max_us else { return Ok(None) };
     let request = || -> std::io::Result<std::fs::File> {
@@ -218,7 +218,7 @@ fn affinity_file(irq: &str) -> std::path::PathBuf {
 /// vehicle computer is the kernel's `irqaffinity=` and `isolcpus=`; this
 /// is for a computer set up without them. Needs root; like pinning, a
 /// failure leaves the run going, for the caller to report.
-pub fn steer_interrupts_off(loop_cpu: Option<usize>) -> Result<Option<SteeredInterrupts>, PlacementError> {
+pub(crate) fn steer_interrupts_off(loop_cpu: Option<usize>) -> Result<Option<SteeredInterrupts>, PlacementError> {
     steer_interrupts_recorded_in(loop_cpu, std::path::Path::new(INTERRUPTS_RECORD))
 }
 

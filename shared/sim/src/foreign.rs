@@ -170,7 +170,7 @@ impl ForeignData {
     /// What a torque sensor on the shaft reads, N·m: the transducers'
     /// pressure difference through the plant's displacement, with their
     /// noise and lag, for an axis whose torque is measured.
-    pub fn torque_reading(&self) -> Vec<f64> {
+    pub(crate) fn torque_reading(&self) -> Vec<f64> {
         self.p_a_bar
             .iter()
             .zip(&self.p_b_bar)

@@ -10,10 +10,10 @@
 //! none): data the model tools were not built from, for `bench foreign`.
 
 pub mod foreign;
-pub mod metrics;
-pub mod simulator;
+mod metrics;
+mod simulator;
 
 pub use simulator::{
     build_plant, simulate, simulate_streaming, simulate_valve_steps, write_csv, CsvRows, Record, SimError,
-    SimulationRun, Summary, MAX_CYCLES, MAX_KEPT_CYCLES,
+    SimulationRun, Summary,
 };

@@ -21,9 +21,9 @@ use hydractl_control::ControlError;
 use hydractl_plant::RawReading;
 
 pub use friction::{FrictionOutput, FrictionStage};
-pub use position::{OuterLoop, PositionOutput, PositionStage};
+pub use position::{PositionOutput, PositionStage};
 pub use sensor::{SensorEstimate, SensorStage};
-pub use torque::{InnerLoop, TorqueStage};
+pub use torque::TorqueStage;
 pub use valve::{ValveFaults, ValveStage};
 
 #[derive(Debug, thiserror::Error)]

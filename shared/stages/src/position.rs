@@ -10,7 +10,7 @@ use crate::{in_section, FrictionOutput, SensorEstimate, StackError};
 // One lives per stage and is never moved on the hot path; boxing would only
 // add an indirection.
 #[allow(clippy::large_enum_variant)]
-pub enum OuterLoop {
+pub(crate) enum OuterLoop {
     Pid(Pid),
     Mfc(Mfc),
 }

@@ -7,7 +7,7 @@ use crate::{in_section, PositionOutput, SensorEstimate, StackError};
 
 /// The inner loop's variants.
 #[derive(Debug, Clone)]
-pub enum InnerLoop {
+pub(crate) enum InnerLoop {
     Pid(Pid),
     HInfinity(HInfinity),
 }

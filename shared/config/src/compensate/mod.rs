@@ -48,7 +48,7 @@ const NEGLIGIBLE_OFFSET: f64 = 1e-3;
 /// (C_em + 2 K_c) Δp, and the valve must meter that flow back, 4 K_q u
 /// (eq. 8–9 of the crane paper, both chambers). In position-only control
 /// the loop's output is this command, not a torque.
-pub fn command_per_torque(plant: &PlantParams) -> f64 {
+pub(crate) fn command_per_torque(plant: &PlantParams) -> f64 {
     (plant.leakage + 2.0 * plant.flow_pressure_coefficient) / (4.0 * plant.flow_gain * plant.displacement)
 }
 

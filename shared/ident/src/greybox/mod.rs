@@ -39,8 +39,7 @@ pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
 pub use learn::{learn, LearnProgress, LearnStep, Learned, Stop};
 pub use shadow::{
-    moved_effect, segment_rms, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow,
-    CALIBRATION_SEGMENTS,
+    moved_effect, validation_spread, Assessment, DriftAlarm, DriftTest, SegmentSpread, Shadow, CALIBRATION_SEGMENTS,
 };
 pub use signals::{part_showing, parts_measured, Signals, COLUMNS, REQUIRED_COLUMNS};
 
@@ -330,7 +329,7 @@ const MAX_WHOLE_SUBSTEPS: usize = 64;
 /// acceleration asks of the model's body (the chambers' mean at the
 /// neutral pressure). The spool runs through the whole record unbroken,
 /// driven by the (delayed) command.
-pub fn predict_whole(
+pub(crate) fn predict_whole(
     plant: &PlantParams,
     effects: &Effects,
     signals: &Signals,

@@ -46,7 +46,7 @@ const MIN_STD_LOG_RMS: f64 = 0.05;
 pub const CALIBRATION_SEGMENTS: usize = 60;
 
 /// The residual RMS of each part over each shooting segment of `range`.
-pub fn segment_rms(signals: &Signals, prediction: &Prediction, range: Range<usize>) -> BTreeMap<Part, Vec<f64>> {
+pub(crate) fn segment_rms(signals: &Signals, prediction: &Prediction, range: Range<usize>) -> BTreeMap<Part, Vec<f64>> {
     let mut out: BTreeMap<Part, Vec<f64>> = BTreeMap::new();
     for segment in segments(signals, range) {
         let n = segment.len().max(1) as f64;

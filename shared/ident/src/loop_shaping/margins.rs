@@ -39,7 +39,7 @@ fn grid() -> impl Iterator<Item = f64> {
 
 /// The margins of `plant` (SISO, no feedthrough) under `controller` on the
 /// error, `u = K (r − y)`.
-pub fn loop_margins(plant: &StateSpace, controller: &StateSpace) -> Result<LoopMargins, LoopShapingError> {
+pub(crate) fn loop_margins(plant: &StateSpace, controller: &StateSpace) -> Result<LoopMargins, LoopShapingError> {
     let poles = plant.negative_feedback_poles(controller)?;
     let slowest_pole_real = poles.iter().fold(f64::NEG_INFINITY, |m, p| m.max(p.re));
     let mut margins = LoopMargins {

@@ -13,7 +13,8 @@ mod tests;
 use hydractl_lti::{solve_care, LtiError, StateSpace, TransferFunction};
 use nalgebra::DMatrix;
 
-pub use margins::{coprime_robustness, loop_margins, LoopMargins};
+use margins::loop_margins;
+pub use margins::{coprime_robustness, LoopMargins};
 
 #[derive(Debug, thiserror::Error)]
 pub enum LoopShapingError {
@@ -25,7 +26,7 @@ pub enum LoopShapingError {
 
 /// The controller of a Glover–McFarlane design for a shaped plant.
 #[derive(Debug, Clone)]
-pub struct CoprimeDesign {
+pub(crate) struct CoprimeDesign {
     /// `K∞`, for negative feedback on the error: `u = K∞ (r − y)`.
     pub controller: StateSpace,
     /// The optimum, `√(1 + ρ(X Z))`.
@@ -42,7 +43,7 @@ pub struct CoprimeDesign {
 /// `L = (1 − γ²) I + XZ` and (for positive feedback)
 /// `K = [A − BBᵀX + γ² L⁻ᵀ Z CᵀC | γ² L⁻ᵀ Z Cᵀ ; BᵀX | 0]`
 /// (Skogestad and Postlethwaite, eq. 9.66–9.70, with `D = 0`).
-pub fn glover_mcfarlane(shaped: &StateSpace, gamma_factor: f64) -> Result<CoprimeDesign, LoopShapingError> {
+pub(crate) fn glover_mcfarlane(shaped: &StateSpace, gamma_factor: f64) -> Result<CoprimeDesign, LoopShapingError> {
     if shaped.b.ncols() != 1 || shaped.c.nrows() != 1 || shaped.d[(0, 0)] != 0.0 {
         return Err(LoopShapingError::Invalid(
             "the shaped plant must be SISO and strictly proper".into(),

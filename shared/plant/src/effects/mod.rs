@@ -110,7 +110,7 @@ pub struct AsymmetricGain {
 
 impl AsymmetricGain {
     #[inline]
-    pub fn gain_factor(&self, opening: f64) -> f64 {
+    pub(crate) fn gain_factor(&self, opening: f64) -> f64 {
         if opening < 0.0 {
             self.ratio
         } else {
@@ -134,7 +134,7 @@ impl OrificeFlow {
 
     /// √(drop / nominal_drop), regularized near zero and zero for a negative drop.
     #[inline]
-    pub fn drop_factor(drop: f64, nominal_drop: f64) -> f64 {
+    pub(crate) fn drop_factor(drop: f64, nominal_drop: f64) -> f64 {
         let r = (drop / nominal_drop).max(0.0);
         if r < Self::LAMINAR_FRACTION {
             r / Self::LAMINAR_FRACTION.sqrt()
@@ -258,7 +258,7 @@ pub struct LoadFlexibility {
 impl LoadFlexibility {
     /// The coupling torque on the load: positive when the actuator leads.
     #[inline]
-    pub fn coupling_torque(&self, twist: f64, twist_rate: f64) -> f64 {
+    pub(crate) fn coupling_torque(&self, twist: f64, twist_rate: f64) -> f64 {
         self.stiffness * twist + self.damping * twist_rate
     }
 }
