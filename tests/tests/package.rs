@@ -65,8 +65,8 @@ fn dpkg_deb(args: &[&str], deb: &Path) -> String {
 fn the_package_holds_the_stack_its_configs_and_a_unit_that_verifies() {
     // Not beside the other test: two `cargo deb` at once strip the same
     // binaries into the same temporary files under `target/` (cargo-deb
-    // 3.8's `{name}.stripped-{i}.tmp`), and one packaged the other's
-    // half-written copy ("Exec format error" on 2026-11-26).
+    // 3.8's `{name}.stripped-{i}.tmp`), and one would package the other's
+    // half-written copy.
     let _turn = serial();
     let dir = scratch_dir("deb");
     let Some(deb) = package(&dir) else { return };
