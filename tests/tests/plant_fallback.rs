@@ -3,11 +3,12 @@
 //! `hydractl plant sim`, the simulated plant goes on from the last measured
 //! state; `hydractl plant machine` goes back. Read from the recording.
 
+use hydractl_samples::code::EventKind;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use hydractl_recording::{decode, read_messages};
-use hydractl_samples::{code, name_str, service, source, PlantReading, SensorSample, SupervisorEvent, ValveSample};
+use hydractl_samples::{name_str, service, source, PlantReading, SensorSample, SupervisorEvent, ValveSample};
 use hydractl_system_tests::*;
 use nix::sys::signal::Signal;
 
@@ -189,7 +190,7 @@ fn a_lost_machine_is_replaced_by_the_simulated_plant_from_its_last_state() {
     let fallback = seat
         .events
         .iter()
-        .find(|e| e.kind == code::EVENT_FALLBACK)
+        .find(|e| e.kind == EventKind::Fallback.code())
         .expect("the fallback event is recorded");
     assert_eq!(
         (name_str(&fallback.from), name_str(&fallback.to)),

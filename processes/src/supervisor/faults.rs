@@ -1,6 +1,7 @@
 //! A fault's account: what stopped or misbehaved, when it was found, and
 //! the judgements behind it (hung, and who is blamed for garbage).
 
+use hydractl_samples::code::EventKind;
 use std::time::{Duration, Instant};
 
 use hydractl_config::OnLimitCycle;
@@ -8,7 +9,7 @@ use hydractl_config::OnLimitCycle;
 /// A process that crashed, hung or misbehaved, until it is back.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Fault {
-    pub(super) kind: u32,
+    pub(super) kind: EventKind,
     pub(super) pid: u32,
     pub(super) detected_at: Instant,
     /// From its last output to the detection.

@@ -16,6 +16,7 @@ mod swaps;
 mod tracking;
 mod valve_log;
 
+use hydractl_samples::code::EventKind;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
@@ -323,9 +324,9 @@ impl Supervisor {
             let child = &mut children[i];
             if child.is_running() {
                 let (kind, what) = if limit_cycling {
-                    (code::EVENT_LIMIT_CYCLE, "limit-cycling")
+                    (EventKind::LimitCycle, "limit-cycling")
                 } else {
-                    (code::EVENT_MISBEHAVING, "garbage")
+                    (EventKind::Misbehaving, "garbage")
                 };
                 let from = child.variant;
                 let fallback = policy
@@ -410,7 +411,7 @@ impl Supervisor {
             if child.uptime(now) > STARTUP_GRACE && cpu[i].busy_for >= spinning_after {
                 let busy_for = cpu[i].busy_for;
                 faults[i] = Some(Fault {
-                    kind: code::EVENT_SPIN,
+                    kind: EventKind::Spin,
                     pid,
                     detected_at: now,
                     silent_for: Duration::from_nanos(clock::now_ns().saturating_sub(last_answer_ns[i])),
@@ -467,7 +468,7 @@ impl Supervisor {
                     child.name,
                     last_seq.unwrap_or(0)
                 );
-                faults[i] = Some(fault(code::EVENT_CRASH));
+                faults[i] = Some(fault(EventKind::Crash));
                 cleanup_needed = true;
                 restarting[i] = child.after_stop(now, policy);
             } else if child.is_running()
@@ -491,7 +492,7 @@ impl Supervisor {
                     child.name,
                     silent_for.as_millis()
                 );
-                faults[i] = Some(fault(code::EVENT_HANG));
+                faults[i] = Some(fault(EventKind::Hang));
                 child.kill_hung();
                 cleanup_needed = true;
                 restarting[i] = child.after_stop(now, policy);
@@ -592,7 +593,7 @@ impl Supervisor {
         for (pid, name) in strangers.look(bus, now, &ours) {
             tracing::warn!("process {pid} publishes on {name} and is not one of the run's: a stranger");
             swaps.publish_plant_event(
-                code::EVENT_STRANGER,
+                EventKind::Stranger,
                 last_reading.map_or(0, |r| r.sensor_seq),
                 Duration::ZERO,
                 name.trim_start_matches("hydractl/"),

@@ -2,6 +2,7 @@
 //! loop's readings, the fallback when the machine is lost, and the change
 //! of places asked for with `hydractl plant sim|machine`.
 
+use hydractl_samples::code::EventKind;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
@@ -96,7 +97,7 @@ impl Seat {
             "{why}: the loop now runs on the SIMULATED plant, from reading {at_seq} and the last measured state; `hydractl plant machine` goes back"
         );
         swaps.publish_plant_event(
-            code::EVENT_FALLBACK,
+            EventKind::Fallback,
             at_seq,
             silent_for,
             "machine",
@@ -136,7 +137,7 @@ impl Seat {
         let message = format!("the loop runs on the {} from reading {at_seq}", plant_name(to));
         tracing::info!("as asked, {message}");
         swaps.publish_plant_event(
-            code::EVENT_PLANT_SWITCH,
+            EventKind::PlantSwitch,
             at_seq,
             Duration::ZERO,
             "plant",

@@ -1,6 +1,7 @@
 //! Hot swaps of the position or torque controller, and the supervisor's
 //! handovers and events.
 
+use hydractl_samples::code::EventKind;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -295,7 +296,7 @@ impl Swaps {
                 std::mem::swap(old, &mut swap.child);
                 swap.child.request_stop();
                 swap.child.finish_stop(now + Duration::from_secs(1));
-                self.publish_event(code::EVENT_SWAP, &swap, at_seq, quality)?;
+                self.publish_event(EventKind::Swap, &swap, at_seq, quality)?;
                 if let Some(undone) = swap.undoing {
                     let message = format!(
                         "rolled back: {} runs {} again from reading {at_seq} ({} missed cycles); {} tracked {:.4} rad rms against {:.4} before",
@@ -476,7 +477,7 @@ impl Swaps {
             loop_step_before: 0.0,
             loop_step_after: 0.0,
         };
-        self.publish_event(code::EVENT_SWAP_FAILED, &swap, 0, quality)?;
+        self.publish_event(EventKind::SwapFailed, &swap, 0, quality)?;
         let message = format!(
             "the {} {} process did not take over, {why}; {} stays in charge",
             swap.to,
@@ -564,7 +565,7 @@ impl Swaps {
             restarted_after_ns: back_at.map_or(u64::MAX, |at| {
                 at.saturating_duration_since(fault.detected_at).as_nanos() as u64
             }),
-            kind: fault.kind,
+            kind: fault.kind.code(),
             pid: fault.pid,
             process: fixed_name(process),
             from: fixed_name(fault.variants.map_or("", |v| v.0)),
@@ -578,7 +579,7 @@ impl Swaps {
     /// The plant seat changed: fallback or asked for.
     pub(super) fn publish_plant_event(
         &mut self,
-        kind: u32,
+        kind: EventKind,
         at_seq: u64,
         detected_after: Duration,
         process: &str,
@@ -592,7 +593,7 @@ impl Swaps {
             valve_safe_after_periods: u64::MAX,
             detected_after_ns: detected_after.as_nanos() as u64,
             restarted_after_ns: u64::MAX,
-            kind,
+            kind: kind.code(),
             pid,
             process: fixed_name(process),
             from: fixed_name(from),
@@ -603,7 +604,13 @@ impl Swaps {
         Ok(())
     }
 
-    fn publish_event(&mut self, kind: u32, swap: &SwapInProgress, at_seq: u64, quality: SwitchQuality) -> Result<()> {
+    fn publish_event(
+        &mut self,
+        kind: EventKind,
+        swap: &SwapInProgress,
+        at_seq: u64,
+        quality: SwitchQuality,
+    ) -> Result<()> {
         self.events.publish(SupervisorEvent {
             seq: self.event_seq,
             stage_time_ns: clock::now_ns(),
@@ -612,7 +619,7 @@ impl Swaps {
             command_step: quality.command_step,
             loop_step_before: quality.loop_step_before,
             loop_step_after: quality.loop_step_after,
-            kind,
+            kind: kind.code(),
             pid: swap.child.pid().unwrap_or(0),
             process: fixed_name(code::stage_name(swap.stage)),
             from: fixed_name(swap.from),

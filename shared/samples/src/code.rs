@@ -9,44 +9,74 @@ pub const STAGE_POSITION: u32 = 0;
 pub const STAGE_TORQUE: u32 = 1;
 /// The plant seat: the machine or the simulated plant ([`crate::source`]).
 pub const STAGE_PLANT: u32 = 2;
-/// [`crate::SupervisorEvent`] kinds.
-pub const EVENT_SWAP: u32 = 0;
-pub const EVENT_SWAP_FAILED: u32 = 1;
-pub const EVENT_CRASH: u32 = 2;
-pub const EVENT_HANG: u32 = 3;
-/// The machine's readings stopped: the simulated plant took over.
-pub const EVENT_FALLBACK: u32 = 4;
-/// The plant seat changed on request (`hydractl plant sim|machine`).
-pub const EVENT_PLANT_SWITCH: u32 = 5;
-/// A controller's commands were rejected by the valve, reading after
-/// reading: it was restarted (into its fallback variant, if any).
-pub const EVENT_MISBEHAVING: u32 = 6;
-/// The valve found a controller's commands limit-cycling and held
-/// neutral: it was restarted (into its fallback variant, if any).
-pub const EVENT_LIMIT_CYCLE: u32 = 7;
-/// A process took more than its share of the loop's CPU for too long
-/// (a busy loop at the loop's priority): it was killed and restarted.
-pub const EVENT_SPIN: u32 = 8;
-/// A process that is none of the run's publishes on one of its
-/// services (`process`: the service, `pid`: the stranger).
-pub const EVENT_STRANGER: u32 = 9;
 /// [`crate::ValveRequest`] kinds: reset the valve's latched fault.
 pub const VALVE_RESET: u32 = 1;
 
-/// An event kind's word, as summaries and logs write it.
-pub fn event_name(kind: u32) -> &'static str {
-    match kind {
-        EVENT_SWAP => "swap",
-        EVENT_SWAP_FAILED => "swap_failed",
-        EVENT_CRASH => "crash",
-        EVENT_HANG => "hang",
-        EVENT_FALLBACK => "fallback",
-        EVENT_PLANT_SWITCH => "plant_switch",
-        EVENT_MISBEHAVING => "misbehaving",
-        EVENT_LIMIT_CYCLE => "limit_cycle",
-        EVENT_SPIN => "spin",
-        EVENT_STRANGER => "stranger",
-        _ => "unknown",
+/// What a [`crate::SupervisorEvent`] reports: its `kind` field is the
+/// code ([`EventKind::code`]), its words [`EventKind::name`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    Swap,
+    SwapFailed,
+    Crash,
+    Hang,
+    /// The machine's readings stopped: the simulated plant took over.
+    Fallback,
+    /// The plant seat changed on request (`hydractl plant sim|machine`).
+    PlantSwitch,
+    /// A controller's commands were rejected by the valve, reading after
+    /// reading: it was restarted (into its fallback variant, if any).
+    Misbehaving,
+    /// The valve found a controller's commands limit-cycling and held
+    /// neutral: it was restarted (into its fallback variant, if any).
+    LimitCycle,
+    /// A process took more than its share of the loop's CPU for too long
+    /// (a busy loop at the loop's priority): it was killed and restarted.
+    Spin,
+    /// A process that is none of the run's publishes on one of its
+    /// services (`process`: the service, `pid`: the stranger).
+    Stranger,
+}
+
+impl EventKind {
+    /// Every kind, in the order of their codes.
+    pub const ALL: [EventKind; 10] = [
+        Self::Swap,
+        Self::SwapFailed,
+        Self::Crash,
+        Self::Hang,
+        Self::Fallback,
+        Self::PlantSwitch,
+        Self::Misbehaving,
+        Self::LimitCycle,
+        Self::Spin,
+        Self::Stranger,
+    ];
+
+    /// The code a sample carries.
+    pub fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// The kind of a sample's code; `None` for one this build does not know.
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.get(code as usize).copied()
+    }
+
+    /// Its word, as summaries and logs write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Swap => "swap",
+            Self::SwapFailed => "swap_failed",
+            Self::Crash => "crash",
+            Self::Hang => "hang",
+            Self::Fallback => "fallback",
+            Self::PlantSwitch => "plant_switch",
+            Self::Misbehaving => "misbehaving",
+            Self::LimitCycle => "limit_cycle",
+            Self::Spin => "spin",
+            Self::Stranger => "stranger",
+        }
     }
 }
 
@@ -74,5 +104,20 @@ pub fn stage_name(stage: u32) -> &'static str {
         STAGE_TORQUE => "torque",
         STAGE_PLANT => "plant",
         _ => "?",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_event_kind_comes_back_from_its_code_with_a_word_of_its_own() {
+        let mut words = std::collections::BTreeSet::new();
+        for kind in EventKind::ALL {
+            assert_eq!(EventKind::from_code(kind.code()), Some(kind));
+            assert!(words.insert(kind.name()), "{kind:?}");
+        }
+        assert_eq!(EventKind::from_code(EventKind::ALL.len() as u32), None);
     }
 }

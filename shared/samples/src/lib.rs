@@ -381,7 +381,7 @@ pub struct SupervisorEvent {
     pub detected_after_ns: u64,
     /// Fault: from the detection to the new process's first output.
     pub restarted_after_ns: u64,
-    /// [`code`] `EVENT_*`.
+    /// [`code::EventKind::code`].
     pub kind: u32,
     pub pid: u32,
     /// NUL-padded ASCII: the process (or stage), and the variants.

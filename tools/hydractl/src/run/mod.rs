@@ -1,6 +1,7 @@
 //! `hydractl run`: starts the supervisor (which starts the loop), watches
 //! the loop's samples, shows a live status, and writes the run's summary.
 
+use hydractl_samples::code::EventKind;
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -12,8 +13,8 @@ use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, Run
 use hydractl_config::Config;
 use hydractl_samples::service::STAGES;
 use hydractl_samples::{
-    code, name_str, service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent,
-    SupervisorStatus, ValveSample,
+    name_str, service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent, SupervisorStatus,
+    ValveSample,
 };
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
@@ -492,9 +493,10 @@ fn watch(
                     loop_step_before: e.loop_step_before,
                     loop_step_after: e.loop_step_after,
                 };
-                match e.kind {
-                    code::EVENT_FALLBACK | code::EVENT_PLANT_SWITCH => {
-                        let lost = e.kind == code::EVENT_FALLBACK;
+                let kind = EventKind::from_code(e.kind);
+                match kind {
+                    Some(EventKind::Fallback | EventKind::PlantSwitch) => {
+                        let lost = kind == Some(EventKind::Fallback);
                         if lost {
                             above_live_line(live);
                             tracing::warn!(
@@ -512,7 +514,7 @@ fn watch(
                             detected_after_ms: e.detected_after_ns as f64 * 1e-6,
                         });
                     }
-                    code::EVENT_STRANGER => {
+                    Some(EventKind::Stranger) => {
                         let stranger = StrangerSummary {
                             pid: e.pid,
                             service: name_str(&e.process).to_owned(),
@@ -529,7 +531,7 @@ fn watch(
                         );
                         strangers.push(stranger);
                     }
-                    code::EVENT_SWAP => {
+                    Some(EventKind::Swap) => {
                         above_live_line(live);
                         tracing::info!(
                             event = "swap",
@@ -545,7 +547,7 @@ fn watch(
                         );
                         swaps.push(swap);
                     }
-                    code::EVENT_SWAP_FAILED => {
+                    Some(EventKind::SwapFailed) => {
                         above_live_line(live);
                         tracing::warn!(
                             event = "swap_failed",
@@ -557,14 +559,16 @@ fn watch(
                         );
                         swap_failures.push(swap);
                     }
-                    code::EVENT_CRASH
-                    | code::EVENT_HANG
-                    | code::EVENT_MISBEHAVING
-                    | code::EVENT_LIMIT_CYCLE
-                    | code::EVENT_SPIN => {
+                    Some(
+                        fault_kind @ (EventKind::Crash
+                        | EventKind::Hang
+                        | EventKind::Misbehaving
+                        | EventKind::LimitCycle
+                        | EventKind::Spin),
+                    ) => {
                         let fault = FaultSummary {
                             process: name_str(&e.process).to_owned(),
-                            kind: code::event_name(e.kind),
+                            kind: fault_kind.name(),
                             pid: e.pid,
                             last_seq: e.sensor_seq,
                             detected_after_ms: e.detected_after_ns as f64 * 1e-6,
