@@ -28,7 +28,7 @@ pub use drift::{Drift, DriftSpec};
 /// Pascal per bar. The plant, its parameters and the live samples hold
 /// pressures in Pa; CSV data and the exports of recordings in bar.
 pub const PA_PER_BAR: f64 = 1e5;
-pub use effects::{Effect, EffectKind, Effects, EffectsConfig, ParamSpec};
+pub use effects::{Effect, EffectKind, Effects, EffectsConfig, FitRange, FitStarts, ParamSpec, StartScale};
 pub use linearize::{affine_step, baseline_linear_model, LINEAR_OUTPUTS, LINEAR_STATES, TORQUE_OUTPUT};
 pub use params::{PlantParams, SensorParams};
 pub use plant::{Plant, PlantState};

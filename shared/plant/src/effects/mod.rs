@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::PlantError;
 
 mod kind;
-pub use kind::{EffectKind, ParamSpec};
+pub use kind::{EffectKind, FitRange, FitStarts, ParamSpec, StartScale};
 
 /// Spool overlap: no flow while the spool is within `width` of the band's
 /// centre, `offset` (a real valve's band is seldom centred on zero: its

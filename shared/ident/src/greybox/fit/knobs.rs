@@ -2,6 +2,7 @@
 //! ranges and scales, and the starts an effect's fit begins from.
 
 use super::*;
+use hydractl_plant::{FitRange, StartScale};
 
 pub(super) const fn log(knob: Knob, min: f64, max: f64) -> Free {
     Free {
@@ -111,37 +112,20 @@ pub(super) fn fits_load_torque(signals: &Signals) -> bool {
     signals.tau.is_some()
 }
 
-/// An effect's free parameters. The encoder step is not among them: a
-/// staircase has no useful derivative, so it is read off the data instead.
+/// An effect's free parameters, with the ranges its catalog entry gives
+/// ([`hydractl_plant::FitRange`]); one read off the data is not among them.
 pub(super) fn effect_knobs(kind: EffectKind) -> Vec<Free> {
-    let k = |key| Knob::Effect(kind, key);
-    match kind {
-        EffectKind::Deadzone => vec![linear(k("width"), 0.01, 0.0, 0.6), linear(k("offset"), 0.01, -0.3, 0.3)],
-        EffectKind::Saturation => vec![linear(k("limit"), 0.01, 0.02, 1.0)],
-        EffectKind::TimeDelay => vec![linear(k("delay_s"), 0.001, 0.0, 0.3)],
-        EffectKind::AsymmetricGain => vec![log(k("ratio"), 0.1, 10.0)],
-        EffectKind::OrificeFlow | EffectKind::Quantization => vec![],
-        EffectKind::CoulombFriction => vec![
-            log(k("coulomb"), 1e-2, 1e4),
-            log(k("breakaway"), 1e-2, 1e4),
-            // A Stribeck velocity is a creep speed, the data sheet's 0.05
-            // rad/s. Allowed up to the rotator's working speeds (2 rad/s),
-            // it made the breakaway excess a falling friction curve over
-            // them, and fits settled with the sliding level at its floor
-            // (4 of 20 foreign plants' 60 N·m missed, against 2 at 0.3).
-            log(k("stribeck_velocity"), 1e-4, 0.3),
-        ],
-        EffectKind::GravityLoad => vec![
-            linear(k("amplitude"), 10.0, -1e5, 1e5),
-            linear(k("offset"), 0.01, -std::f64::consts::PI, std::f64::consts::PI),
-        ],
-        EffectKind::Backlash => vec![linear(k("width"), 0.001, 0.0, 0.5)],
-        EffectKind::LoadFlexibility => vec![
-            log(k("stiffness"), 1.0, 1e6),
-            log(k("damping"), 1e-3, 1e6),
-            linear(k("load_fraction"), 0.01, 0.02, 0.98),
-        ],
-    }
+    kind.params()
+        .iter()
+        .filter_map(|p| {
+            let knob = Knob::Effect(kind, p.key);
+            match p.fit {
+                FitRange::Fixed => None,
+                FitRange::Log { min, max } => Some(log(knob, min, max)),
+                FitRange::Linear { unit, min, max } => Some(linear(knob, unit, min, max)),
+            }
+        })
+        .collect()
 }
 
 /// Whether an effect's main parameter sits at an edge of the range the fit
@@ -203,55 +187,35 @@ impl Free {
 }
 
 /// Starting values to try for an effect: its main parameter over the range
-/// it can plausibly take, the others at the catalog's defaults.
+/// it can plausibly take, as its catalog entry gives them
+/// ([`EffectKind::fit_starts`]), the others at the catalog's defaults.
 pub(super) fn starts(kind: EffectKind, signals: &Signals) -> Vec<Effect> {
-    let with = |pairs: &[(&str, f64)]| -> Option<Effect> {
-        let given: BTreeMap<String, f64> = pairs.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect();
-        Effect::from_params(kind, &given).ok()
+    let from = |given: BTreeMap<String, f64>| Effect::from_params(kind, &given).ok();
+    let (Some(main), plan) = (kind.params().first(), kind.fit_starts()) else {
+        return from(BTreeMap::new()).into_iter().collect();
     };
-    let values: Vec<Vec<(&str, f64)>> = match kind {
-        EffectKind::Deadzone => [0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3]
-            .iter()
-            .map(|w| vec![("width", *w)])
-            .collect(),
-        EffectKind::Saturation => {
-            let peak = signals.u.iter().fold(0.0_f64, |m, u| m.max(u.abs()));
-            [0.3, 0.45, 0.6, 0.75, 0.9]
-                .iter()
-                .map(|f| vec![("limit", (f * peak).max(0.02))])
-                .collect()
-        }
-        EffectKind::TimeDelay => [0.002, 0.005, 0.01, 0.02, 0.035, 0.05, 0.08]
-            .iter()
-            .map(|d| vec![("delay_s", *d)])
-            .collect(),
-        EffectKind::AsymmetricGain => [0.4, 0.55, 0.7, 0.85, 1.2, 1.5, 2.0]
-            .iter()
-            .map(|r| vec![("ratio", *r)])
-            .collect(),
-        EffectKind::OrificeFlow => vec![vec![]],
-        EffectKind::CoulombFriction => [3.0, 10.0, 25.0, 50.0, 100.0, 200.0]
-            .iter()
-            .map(|c| vec![("coulomb", *c), ("breakaway", 1.5 * c)])
-            .collect(),
-        EffectKind::GravityLoad => [-300.0, -100.0, -30.0, 30.0, 100.0, 300.0]
-            .iter()
-            .map(|a| vec![("amplitude", *a)])
-            .collect(),
-        EffectKind::Backlash => [0.002, 0.005, 0.01, 0.02, 0.04, 0.08]
-            .iter()
-            .map(|w| vec![("width", *w)])
-            .collect(),
-        EffectKind::Quantization => {
-            let step = encoder_step(&signals.theta);
-            [0.98, 1.0, 1.02].iter().map(|f| vec![("step", f * step)]).collect()
-        }
-        EffectKind::LoadFlexibility => [1000.0, 2500.0, 5000.0, 10000.0, 25000.0]
-            .iter()
-            .map(|s| vec![("stiffness", *s), ("damping", 0.005 * s)])
-            .collect(),
+    let size = match plan.of {
+        StartScale::Absolute => 1.0,
+        StartScale::PeakCommand => signals.u.iter().fold(0.0_f64, |m, u| m.max(u.abs())),
+        StartScale::EncoderStep => encoder_step(&signals.theta),
     };
-    values.iter().filter_map(|pairs| with(pairs)).collect()
+    // A share of the data's command below the range the fit searches
+    // starts at the range's floor.
+    let floor = match (plan.of, main.fit) {
+        (StartScale::PeakCommand, FitRange::Linear { min, .. } | FitRange::Log { min, .. }) => min,
+        _ => f64::NEG_INFINITY,
+    };
+    plan.values
+        .iter()
+        .filter_map(|v| {
+            let value = (v * size).max(floor);
+            let mut given = BTreeMap::from([(main.key.to_owned(), value)]);
+            if let Some((key, factor)) = plan.tied {
+                given.insert(key.to_owned(), factor * value);
+            }
+            from(given)
+        })
+        .collect()
 }
 
 /// The encoder's step as the data shows it: the smallest change of the
