@@ -19,6 +19,7 @@ use hydractl_samples::{
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
+mod misses;
 mod monitor;
 mod recording;
 mod summary;
@@ -247,6 +248,17 @@ pub fn run(mut args: RunArgs) -> Result<()> {
     if summary.plant == "simulation" && !summary.plant_switches.is_empty() {
         tracing::warn!("the run ended on the SIMULATED plant, not the machine");
     }
+    if !summary.deadline_miss_evidence.is_empty() {
+        let stalled = summary
+            .deadline_miss_evidence
+            .iter()
+            .filter(|e| e.cause == "computer stalled")
+            .count();
+        eprintln!(
+            "deadline misses: {} stretch(es) described, {stalled} while this monitor, on another CPU, was kept from running too (the computer stalled); the rest name the chain's slowest hop (`deadline_miss_evidence`)",
+            summary.deadline_miss_evidence.len()
+        );
+    }
     crate::emit(&format!(
         "{} cycles, {} deadline misses, latency p50 {} µs p99 {} µs p99.9 {} µs max {:.0} µs, tracking error rms {:.4} rad max {:.4} rad, {} restart(s)\n",
         summary.cycles,
@@ -360,6 +372,7 @@ fn watch(
     let mut faults = 0u64;
     let mut faults_by_kind = std::collections::BTreeMap::new();
     let mut late = 0u64;
+    let mut misses = misses::Misses::new(hydractl_bus::clock::now_ns());
     let mut last_valve_seq: Option<u64> = None;
     let mut processes: Vec<ProcessSummary> = vec![ProcessSummary {
         name: "supervisor".into(),
@@ -438,6 +451,7 @@ fn watch(
                     // Only a sample derived from a reading has a latency.
                     if v.sensor_time_ns != 0 {
                         by_stage[VALVE_STAGE].record_between(v.sensor_time_ns, v.stage_time_ns);
+                        misses.stamp(VALVE_STAGE, v.sensor_seq, v.sensor_time_ns, v.stage_time_ns);
                     }
                 }
                 if v.faults != 0 {
@@ -451,12 +465,15 @@ fn watch(
             }
             while let Some(x) = sensor.next()? {
                 by_stage[0].record_between(x.sensor_time_ns, x.stage_time_ns);
+                misses.stamp(0, x.sensor_seq, x.sensor_time_ns, x.stage_time_ns);
             }
             while let Some(x) = friction.next()? {
                 by_stage[1].record_between(x.sensor_time_ns, x.stage_time_ns);
+                misses.stamp(1, x.sensor_seq, x.sensor_time_ns, x.stage_time_ns);
             }
             while let Some(p) = position.next()? {
                 by_stage[2].record_between(p.sensor_time_ns, p.stage_time_ns);
+                misses.stamp(2, p.sensor_seq, p.sensor_time_ns, p.stage_time_ns);
                 let e = p.reference_angle - p.angle;
                 // An invalid reading (a PDO that did not come) has no angle:
                 // the valve was neutral for it, and the next one counts.
@@ -477,7 +494,11 @@ fn watch(
             }
             while let Some(t) = torque.next()? {
                 by_stage[3].record_between(t.sensor_time_ns, t.stage_time_ns);
+                misses.stamp(3, t.sensor_seq, t.sensor_time_ns, t.stage_time_ns);
             }
+            let now_ns = hydractl_bus::clock::now_ns();
+            misses.on_late(late, now_ns);
+            misses.tick(now_ns);
             if let Some(s) = status.latest()? {
                 merge_status(&mut processes, &s);
                 on_simulation = s.plant_is_simulation != 0;
@@ -688,6 +709,8 @@ fn watch(
         duration_s: started.elapsed().as_secs_f64(),
         cycles,
         deadline_misses: late,
+        deadline_miss_evidence: misses.described,
+        deadline_miss_stretches_not_described: misses.not_described,
         latency_us: by_stage[VALVE_STAGE].summary(),
         latency_by_stage_us: STAGES
             .iter()

@@ -44,6 +44,10 @@ pub(super) struct RunSummary {
     pub(super) duration_s: f64,
     pub(super) cycles: u64,
     pub(super) deadline_misses: u64,
+    /// Each stretch of misses with where its time went (the first 100).
+    pub(super) deadline_miss_evidence: Vec<super::misses::MissEvidence>,
+    /// Stretches of misses beyond those described.
+    pub(super) deadline_miss_stretches_not_described: u64,
     /// Sensor reading to valve command, from the samples' own timestamps.
     pub(super) latency_us: LatencySummary,
     /// From the sensor reading to each stage's output, stage by stage along
