@@ -37,6 +37,9 @@ pub(super) struct MissEvidence {
     /// answered any of them.
     pub(super) slowest_hop: Option<&'static str>,
     pub(super) slowest_hop_us: Option<f64>,
+    /// Readings of the stretch the valve never answered: no stage did, or
+    /// a stage took a newer reading before it was done.
+    pub(super) unanswered_readings: u64,
     /// The longest this monitor, on another CPU, waited beyond its own
     /// tick around the misses, ms.
     pub(super) monitor_stalled_ms: f64,
@@ -153,8 +156,12 @@ impl Misses {
 
     fn describe(&self, at_ns: u64, (first, last): (u64, u64), cycles: u64) -> MissEvidence {
         let mut slowest: Option<(usize, u64)> = None;
+        let mut unanswered = 0;
         for seq in first..=last {
             let s = &self.ring[(seq % RING as u64) as usize];
+            if s.seq != seq || s.stage_ns[HOPS.len() - 1] == 0 {
+                unanswered += 1;
+            }
             if s.seq != seq || s.reading_ns == 0 {
                 continue;
             }
@@ -185,6 +192,7 @@ impl Misses {
             cycles,
             slowest_hop: slowest.map(|(hop, _)| HOPS[hop]),
             slowest_hop_us: slowest.map(|(_, ns)| ns as f64 * 1e-3),
+            unanswered_readings: unanswered,
             monitor_stalled_ms: stalled_ns as f64 * 1e-6,
             cause: if stalled_ns >= STALLED_NS {
                 "computer stalled"
@@ -237,6 +245,7 @@ mod tests {
         assert_eq!(e.slowest_hop, Some("position→torque"));
         assert!(e.slowest_hop_us.is_some_and(|us| (us - 4010.0).abs() < 1.0), "{e:?}");
         assert_eq!(e.cause, "chain late");
+        assert_eq!(e.unanswered_readings, 0);
         assert!(e.readings.0 <= 90 && 90 <= e.readings.1, "{e:?}");
     }
 
@@ -245,13 +254,34 @@ mod tests {
         let mut m = Misses::new(0);
         m.tick(0);
         feed(&mut m, 0..50, 0, None);
-        // The monitor woke 30 ms late, and the plant counted 20 late.
+        // The monitor woke 30 ms late, and the plant counted 20 late; the
+        // chain answered the readings after 49 only once it ran again.
         m.tick(40 * MS);
         m.on_late(20, 40 * MS);
         m.tick(100 * MS);
         let e = &m.described[0];
         assert_eq!(e.cause, "computer stalled");
+        assert_eq!(e.unanswered_readings, 0, "{e:?}");
         assert!((e.monitor_stalled_ms - 30.0).abs() < 1e-9, "{e:?}");
+    }
+
+    #[test]
+    fn a_reading_the_valve_never_answered_is_counted() {
+        let mut m = Misses::new(0);
+        feed(&mut m, 0..15, 0, None);
+        // Reading 15 reaches the torque stage only; 16 no stage at all.
+        for stage in 0..STAGES.len() - 1 {
+            m.stamp(stage, 15, 15 * MS, 15 * MS + 10_000);
+        }
+        feed(&mut m, 17..20, 0, None);
+        for t in 0..=2 {
+            m.tick(t * 10 * MS);
+        }
+        m.on_late(2, 20 * MS);
+        for t in 3..=8 {
+            m.tick(t * 10 * MS);
+        }
+        assert_eq!(m.described[0].unanswered_readings, 2, "{:?}", m.described[0]);
     }
 
     #[test]
