@@ -205,7 +205,7 @@ pub struct Started {
 /// one restarted in its place does not.
 pub(crate) const INJECT_FAULT_ENV: &str = "HYDRACTL_INJECT_FAULT";
 
-/// A fault injected through [`INJECT_FAULT_ENV`], if it names this process.
+/// A fault injected through `INJECT_FAULT_ENV`, if it names this process.
 #[derive(Debug, Default)]
 pub struct InjectedFault {
     spin_at: Option<u64>,

@@ -11,7 +11,7 @@
 //! neutral. When the computer stalls, the plant pauses or catches up, as
 //! `timing.stall_policy` says.
 //!
-//! The plant seat ([`PlantSeat`]) decides which of the two publishes the
+//! The plant seat (`PlantSeat`) decides which of the two publishes the
 //! loop's readings. The simulated plant in standby only watches the loop's
 //! last measured state; when it takes over, it starts from that state with
 //! the valve neutral. The machine out of charge goes on existing: its valve

@@ -6,7 +6,7 @@
 //! atomically (written beside, synced, renamed).
 //!
 //! It also keeps the times of the last resets: a valve that faults again
-//! after each of [`MAX_RESETS`] resets within [`RESET_WINDOW_S`] needs
+//! after each of `MAX_RESETS` resets within `RESET_WINDOW_S` needs
 //! service, not another reset (`--serviced` says it had it).
 
 use std::path::{Path, PathBuf};
@@ -145,7 +145,7 @@ impl FaultLatch {
         Ok(fault.clone())
     }
 
-    /// Clears the latched fault (after [`FaultLatch::may_reset`]) and
+    /// Clears the latched fault (after `FaultLatch::may_reset`) and
     /// writes the reset down.
     pub fn reset(&mut self, serviced: bool, now_unix_s: f64) -> Result<()> {
         self.file.fault = None;

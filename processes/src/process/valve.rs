@@ -2,7 +2,7 @@
 //! state for every command, and neutral with a fault flag when commands
 //! stop, arrive stale, or are garbage. The valve is driven neutral before
 //! the loop starts and on every way out of it: a signal, an error, a
-//! panic (the drop of [`Actuator`]).
+//! panic (the drop of `Actuator`).
 
 use std::cell::Cell;
 use std::time::{Duration, Instant};

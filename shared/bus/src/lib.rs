@@ -61,7 +61,7 @@ pub const PROCESS_BINARIES: [&str; 12] = [
 /// The folder of the process binaries (the supervisor, the stages):
 /// [`PROCESS_DIR_ENV`] when set, else beside the running executable (a
 /// build tree's `target/release`, or the supervisor starting its
-/// children), else the installed package's [`INSTALLED_PROCESS_DIR`].
+/// children), else the installed package's `INSTALLED_PROCESS_DIR`.
 pub fn process_dir() -> Result<std::path::PathBuf, BusError> {
     let exe = std::env::current_exe().map_err(|source| BusError::Executable { source })?;
     let from_env = std::env::var_os(PROCESS_DIR_ENV).map(std::path::PathBuf::from);

@@ -5,7 +5,7 @@
 //!
 //! A setting is written (expedited download), then read (upload) and
 //! compared: a refusal (SDO abort), a value read back other than the one
-//! written, or no answer after [`ATTEMPTS`] tries of [`ANSWER_TIMEOUT_NS`]
+//! written, or no answer after `ATTEMPTS` tries of `ANSWER_TIMEOUT_NS`
 //! each is a [`CanError::Setting`] naming the node, the object and the value.
 
 use crate::canopen::{abort_description, NodeId, SdoRequest, SdoResponse};

@@ -18,7 +18,7 @@
 //!
 //! A master keeps R high and steps Init (0x08) → Disabled (0x09) → Hold
 //! (0x0B) → Active (0x0F). A fault is cleared by R low (0x03) then high
-//! (0x0B): [`RESET_WORDS`], which a master sends only when a person asks
+//! (0x0B): `RESET_WORDS`, which a master sends only when a person asks
 //! (ISO 13849-1's manual reset): its bring-up stops at a fault.
 
 use crate::CanError;

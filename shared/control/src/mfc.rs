@@ -120,7 +120,7 @@ impl Mfc {
     /// this one stands by: its forward model and PIDs run on, as they
     /// would in charge, and the transfer takes up the difference, so that
     /// from the switch it goes on from the running output and fades to its
-    /// own over [`TRANSFER_FADE_S`]. (Re-initializing the model from the
+    /// own over `TRANSFER_FADE_S`. (Re-initializing the model from the
     /// measured, noisy velocity every period would not: with the cascade's
     /// gains, one period's noise is tens of N·m.)
     pub fn track(&mut self, output: f64) {

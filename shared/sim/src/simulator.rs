@@ -207,7 +207,7 @@ fn cycles_of(config: &Config, duration: f64, max: u64, why: &'static str) -> Res
 }
 
 /// Runs the closed loop for `duration` seconds and keeps every period
-/// (at most [`MAX_KEPT_CYCLES`]; [`simulate_streaming`] keeps none).
+/// (at most `MAX_KEPT_CYCLES`; [`simulate_streaming`] keeps none).
 pub fn simulate(config: &Config, extra_effects: &[Effect], duration: f64) -> Result<SimulationRun, SimError> {
     let cycles = cycles_of(
         config,

@@ -35,7 +35,7 @@ pub fn default_config() -> Config {
     Config::default_sim().expect("the built-in config loads")
 }
 
-/// The control stack after [`WARM_PERIODS`] periods on the simulated
+/// The control stack after `WARM_PERIODS` periods on the simulated
 /// plant, and what each stage is given in the next period.
 #[derive(Clone)]
 pub struct NextPeriod {
