@@ -4,6 +4,8 @@
 //! running at the same time, which only a stall of the whole computer
 //! does.
 
+use std::collections::VecDeque;
+
 use serde::Serialize;
 
 use hydractl_samples::service::STAGES;
@@ -79,7 +81,7 @@ pub(super) struct Misses {
     next_gap: usize,
     /// Misses counted, not yet described: (counted at ns, first reading,
     /// last reading, cycles).
-    pending: Vec<(u64, u64, u64, u64)>,
+    pending: VecDeque<(u64, u64, u64, u64)>,
     pub(super) described: Vec<MissEvidence>,
     /// Stretches beyond the [`KEPT`] described.
     pub(super) not_described: u64,
@@ -96,7 +98,7 @@ impl Misses {
             last_tick_ns: None,
             gaps: [(0, 0); GAPS],
             next_gap: 0,
-            pending: Vec::new(),
+            pending: VecDeque::new(),
             described: Vec::new(),
             not_described: 0,
             started_ns,
@@ -125,7 +127,7 @@ impl Misses {
         if late > self.late {
             let first = self.checked_seq.saturating_sub(1);
             self.pending
-                .push((now_ns, first, self.newest_seq.max(first), late - self.late));
+                .push_back((now_ns, first, self.newest_seq.max(first), late - self.late));
             self.late = late;
         }
         self.checked_seq = self.newest_seq;
@@ -140,11 +142,11 @@ impl Misses {
             self.next_gap = (self.next_gap + 1) % GAPS;
         }
         self.last_tick_ns = Some(now_ns);
-        while let Some(&(at, first, last, cycles)) = self.pending.first() {
+        while let Some(&(at, first, last, cycles)) = self.pending.front() {
             if now_ns < at + SETTLE_NS {
                 break;
             }
-            self.pending.remove(0);
+            self.pending.pop_front();
             let evidence = self.describe(at, (first, last), cycles);
             if self.described.len() < KEPT {
                 self.described.push(evidence);
