@@ -17,6 +17,9 @@ pub struct RunScope {
 pub const DEFAULT_PREFIX: &str = "hydractl_";
 /// The environment variable that passes the prefix to child processes.
 pub const PREFIX_ENV: &str = "HYDRACTL_IPC_PREFIX";
+/// An empty, unreadable storage this old was abandoned by its creator: a
+/// live one sizes and opens it within microseconds.
+const ABANDONED_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
 /// The folder every run's own folder lives in, iceoryx2's, shared by the
 /// computer's users.
 const IPC_ROOT: &str = "/tmp/iceoryx2";
@@ -62,6 +65,7 @@ impl RunScope {
     /// (crashed or killed), so their services can be opened afresh.
     /// Returns how many dead nodes were cleaned.
     pub fn remove_dead_nodes(&self) -> Result<usize, BusError> {
+        self.remove_abandoned_storages();
         let mut cleaned = 0;
         self.each_node(|state| {
             if let NodeState::Dead(view) = state {
@@ -137,6 +141,31 @@ impl RunScope {
             }
         }
         Ok(())
+    }
+
+    /// iceoryx2 0.10 waits without end, with SIGTERM blocked, to open a
+    /// storage whose creator died between making its file and sizing it
+    /// (an empty file, write-only until initialized: the open's
+    /// `MappingSizeIsZero` case has no timeout), and a dead node's cleanup
+    /// opens every storage of its services. A process killed while it
+    /// opened a service (a restart) left one, and the supervisor's next
+    /// cleanup hung for good. Such a file older than
+    /// [`ABANDONED_AFTER`] is an abandoned creation: removed first.
+    fn remove_abandoned_storages(&self) {
+        use std::os::unix::fs::PermissionsExt;
+        for path in self.shm_files() {
+            let Ok(meta) = std::fs::metadata(&path) else { continue };
+            let abandoned = meta.len() == 0
+                && meta.permissions().mode() & 0o444 == 0
+                && meta
+                    .modified()
+                    .ok()
+                    .and_then(|at| at.elapsed().ok())
+                    .is_some_and(|age| age >= ABANDONED_AFTER);
+            if abandoned {
+                let _ = std::fs::remove_file(&path);
+            }
+        }
     }
 
     /// iceoryx2 0.10 creates its node counter (`…_node.<version>.global_mgmt`
@@ -397,5 +426,30 @@ mod tests {
         }
         drop(bus);
         scope.clean_stale().expect("clean");
+    }
+
+    #[test]
+    fn a_storage_whose_creator_died_before_sizing_it_is_removed_before_the_dead_nodes() {
+        let scope = RunScope::new(&format!("t{}_abandon_", std::process::id() % 100_000)).expect("prefix");
+        scope.remove_all_files().expect("clean start");
+        let file = |name: &str, bytes: &[u8], mode: u32, age_s: u64| {
+            let path = PathBuf::from(format!("/dev/shm/{}{name}", scope.prefix()));
+            std::fs::write(&path, bytes).expect("write");
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).expect("chmod");
+            let at = std::time::SystemTime::now() - std::time::Duration::from_secs(age_s);
+            std::fs::File::options()
+                .write(true)
+                .open(&path)
+                .and_then(|f| f.set_modified(at))
+                .expect("mtime");
+            path
+        };
+        let abandoned = file("abandoned.dynamic", b"", 0o200, 5);
+        let being_made = file("being_made.dynamic", b"", 0o200, 0);
+        let finished = file("finished.dynamic", b"x", 0o600, 5);
+        scope.remove_dead_nodes().expect("cleanup");
+        assert!(!abandoned.exists());
+        assert!(being_made.exists() && finished.exists());
+        scope.remove_all_files().expect("clean");
     }
 }
