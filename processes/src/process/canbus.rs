@@ -19,8 +19,29 @@ use hydractl_samples::{service, CanFrameSample, WireStatus};
 const TX_BUFFER: usize = 256;
 /// How often the wire's counters are published.
 const STATUS_EVERY_NS: u64 = 100_000_000;
+/// A delivery this late is published at once, not only in the next
+/// status: each is the evidence of a deadline miss (`hydractl run`).
+const LATE_PUBLISHED_NS: u64 = 100_000;
 
-fn status(wire: &Wire, seq: u64) -> WireStatus {
+/// How far the wire's deliveries fell behind their time, ns.
+#[derive(Default)]
+struct Lateness {
+    /// The delivery furthest behind since the last status: (late by, due at).
+    since_status: (u64, u64),
+    wakeups: u64,
+    worst_ns: u64,
+}
+
+impl Lateness {
+    fn on_delivery(&mut self, late_ns: u64, due_ns: u64) {
+        if late_ns > self.since_status.0 {
+            self.since_status = (late_ns, due_ns);
+        }
+        self.worst_ns = self.worst_ns.max(late_ns);
+    }
+}
+
+fn status(wire: &Wire, seq: u64, late: &Lateness) -> WireStatus {
     let c = wire.counters();
     WireStatus {
         seq,
@@ -30,6 +51,10 @@ fn status(wire: &Wire, seq: u64) -> WireStatus {
         silenced: c.silenced,
         error_frames: c.error_frames,
         busy_ns: c.busy_ns,
+        late_max_ns: late.since_status.0,
+        late_max_due_ns: late.since_status.1,
+        late_wakeups: late.wakeups,
+        late_worst_ns: late.worst_ns,
     }
 }
 
@@ -51,6 +76,7 @@ pub fn run() -> Result<()> {
     // from before this wire started was sent to a wire that is gone.
     let started_ns = clock::now_ns();
     let mut delivered = 0u64;
+    let mut late = Lateness::default();
     let mut failure = None;
     started.enter_realtime();
     let inputs = [tx.input()];
@@ -93,15 +119,23 @@ pub fn run() -> Result<()> {
                         wire.submit(sample_frame(&sample), sample.station, sample.time_ns);
                     }
                 }
-                while let Some(delivery) = wire.poll(clock::now_ns()) {
+                loop {
+                    let now = clock::now_ns();
+                    let Some(delivery) = wire.poll(now) else { break };
                     delivered += 1;
+                    late.on_delivery(now.saturating_sub(delivery.end_ns), delivery.end_ns);
                     let mut sample = frame_sample(&delivery.frame, delivered, delivery.end_ns, delivery.station);
                     sample.submitted_ns = delivery.submitted_ns;
                     rx.publish(sample)?;
                 }
                 let now = clock::now_ns();
-                if now >= status_due_ns {
-                    counters.publish(status(&wire, status_seq))?;
+                let late_now = late.since_status.0 >= LATE_PUBLISHED_NS;
+                if late_now {
+                    late.wakeups += 1;
+                }
+                if now >= status_due_ns || late_now {
+                    counters.publish(status(&wire, status_seq, &late))?;
+                    late.since_status = (0, 0);
                     status_seq += 1;
                     status_due_ns = now + STATUS_EVERY_NS;
                 }
@@ -110,6 +144,6 @@ pub fn run() -> Result<()> {
         },
     )?;
     // The last word, for a run that reads the counters at its end.
-    counters.publish(status(&wire_cell.borrow(), status_seq))?;
+    counters.publish(status(&wire_cell.borrow(), status_seq, &late))?;
     failure.map_or(Ok(()), Err)
 }

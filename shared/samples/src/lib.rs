@@ -171,6 +171,15 @@ pub struct WireStatus {
     pub error_frames: u64,
     /// Bus time used, ns.
     pub busy_ns: u64,
+    /// Since the last status: the most a frame was delivered after its
+    /// last bit crossed, ns, and when that bit crossed. The wire's own
+    /// timer runs on the loop's CPU: late, the CPU ran nothing of the loop.
+    pub late_max_ns: u64,
+    pub late_max_due_ns: u64,
+    /// Since the wire started: its wake-ups that delivered a frame 0.1 ms
+    /// or more after its time, and the latest any frame came, ns.
+    pub late_wakeups: u64,
+    pub late_worst_ns: u64,
 }
 
 /// What the plant's sensors read (on the vehicle: what arrives on the bus).

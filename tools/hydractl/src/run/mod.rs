@@ -248,16 +248,8 @@ pub fn run(mut args: RunArgs) -> Result<()> {
     if summary.plant == "simulation" && !summary.plant_switches.is_empty() {
         tracing::warn!("the run ended on the SIMULATED plant, not the machine");
     }
-    if !summary.deadline_miss_evidence.is_empty() {
-        let stalled = summary
-            .deadline_miss_evidence
-            .iter()
-            .filter(|e| e.cause == "computer stalled")
-            .count();
-        eprintln!(
-            "deadline misses: {} stretch(es) described, {stalled} while this monitor, on another CPU, was kept from running too (the computer stalled); the rest name the chain's slowest hop (`deadline_miss_evidence`)",
-            summary.deadline_miss_evidence.len()
-        );
+    if let Some(line) = misses::report(&summary.deadline_miss_evidence) {
+        eprintln!("{line}");
     }
     crate::emit(&format!(
         "{} cycles, {} deadline misses, latency p50 {} µs p99 {} µs p99.9 {} µs max {:.0} µs, tracking error rms {:.4} rad max {:.4} rad, {} restart(s)\n",
@@ -372,7 +364,10 @@ fn watch(
     let mut faults = 0u64;
     let mut faults_by_kind = std::collections::BTreeMap::new();
     let mut late = 0u64;
-    let mut misses = misses::Misses::new(hydractl_bus::clock::now_ns());
+    let mut misses = misses::Misses::new(
+        hydractl_bus::clock::now_ns(),
+        (config.timing.control_period() * 1e9) as u64,
+    );
     let mut last_valve_seq: Option<u64> = None;
     let mut processes: Vec<ProcessSummary> = vec![ProcessSummary {
         name: "supervisor".into(),
@@ -405,7 +400,7 @@ fn watch(
             // Every reading, for the machine's PDOs that were not there in time.
             let readings: Reader<PlantReading> = Reader::open(&bus, service::PLANT_READING, 256)?;
             let wire: Reader<hydractl_samples::WireStatus> =
-                Reader::open(&bus, &service::can_wire(&profile.interface), 4)?;
+                Reader::open(&bus, &service::can_wire(&profile.interface), 64)?;
             Some((
                 port,
                 hydractl_can::stats::BusStats::new(&profile),
@@ -424,6 +419,7 @@ fn watch(
                     stats.on_frame(&received.frame, received.time_ns);
                 }
                 while let Some(w) = wire.next()? {
+                    misses.on_wire(w.late_max_due_ns, w.late_max_ns);
                     *wire_last = Some(w);
                 }
                 while let Some(r) = machine_readings.next()? {
@@ -705,12 +701,13 @@ fn watch(
     }
     // A signal ends the run as the duration does: with a summary.
     let _: LoopExit = exit;
+    let (deadline_miss_evidence, deadline_miss_stretches_not_described) = misses.finish();
     Ok(RunSummary {
         duration_s: started.elapsed().as_secs_f64(),
         cycles,
         deadline_misses: late,
-        deadline_miss_evidence: misses.described,
-        deadline_miss_stretches_not_described: misses.not_described,
+        deadline_miss_evidence,
+        deadline_miss_stretches_not_described,
         latency_us: by_stage[VALVE_STAGE].summary(),
         latency_by_stage_us: STAGES
             .iter()
@@ -760,6 +757,8 @@ fn watch(
                     delivered: w.delivered,
                     lost: w.lost,
                     error_frames: w.error_frames,
+                    late_wakeups: w.late_wakeups,
+                    late_worst_us: w.late_worst_ns as f64 * 1e-3,
                 }),
             }
         }),

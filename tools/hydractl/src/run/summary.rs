@@ -182,6 +182,11 @@ pub(super) struct WireSummary {
     pub(super) delivered: u64,
     pub(super) lost: u64,
     pub(super) error_frames: u64,
+    /// The wire's wake-ups that delivered a frame 0.1 ms or more after its
+    /// last bit crossed, and the latest one came, µs: its timer runs on
+    /// the loop's CPU, so each is time the CPU ran nothing of the loop.
+    pub(super) late_wakeups: u64,
+    pub(super) late_worst_us: f64,
 }
 
 #[derive(Serialize)]
