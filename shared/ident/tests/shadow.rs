@@ -2,18 +2,22 @@
 //! plant, judged against its own validation spread, raises nothing on a
 //! run it was not calibrated on, alarms on a valve whose dead-zone opened,
 //! an adopted model is judged only after calibrating on live data, and a
-//! drift of an effect the model already has is named by its refit.
+//! drift of an effect the model already has is named by its refit. The
+//! same on a plant the project did not shape (`hydractl_sim::foreign`),
+//! with the model fitted from its own data.
 
 use std::collections::BTreeMap;
 
 use hydractl_config::Config;
 use hydractl_ident::greybox::{
-    diagnose, moved_effect, validation_spread, DriftTest, FitOptions, HistoryStep, Model, Shadow, Signals,
-    CALIBRATION_SEGMENTS,
+    diagnose, fit_baseline, moved_effect, validation_spread, DriftTest, FitOptions, HistoryStep, Model, Shadow,
+    Signals, CALIBRATION_SEGMENTS,
 };
 use hydractl_ident::Dataset;
 use hydractl_plant::effects::Effects;
 use hydractl_plant::Effect;
+use hydractl_plant::PlantParams;
+use hydractl_sim::foreign::{foreign_plant, Hidden, Sensors};
 use hydractl_sim::simulate;
 
 const WINDOW_S: f64 = 5.0;
@@ -134,4 +138,44 @@ fn friction_that_rose_is_named_as_the_models_own_effect_moved() {
     let true_model = with_friction(60.0);
     let diagnosis = diagnose(&signals, Some(&true_model), FitOptions::default()).expect("diagnoses");
     assert_eq!(moved_effect(&true_model, &diagnosis), None, "nothing moved");
+}
+
+/// `duration` s of the foreign plant of `seed`, with `hidden`, as rows.
+fn foreign(seed: u64, hidden: &[Hidden], duration: f64) -> Vec<[f64; 5]> {
+    let record = foreign_plant(seed, hidden, duration).record(Sensors::Full, 1);
+    let column = |name: &str| &record.iter().find(|(n, _)| *n == name).expect("recorded").1;
+    let (t, u, p_a, p_b, theta) = (column("t"), column("u"), column("p_a"), column("p_b"), column("theta"));
+    (0..t.len()).map(|k| [t[k], u[k], p_a[k], p_b[k], theta[k]]).collect()
+}
+
+/// The baseline fitted from a foreign plant's first minute, from the data
+/// sheet's prior as `hydractl model fit` does, raises nothing on its next
+/// minute (a reference it was not fitted on) and alarms once the plant's
+/// valve has a dead band. The plant's own laws (quadratic friction, the
+/// transducers' lag, supply ripple) are not the model's: its validation
+/// spread is what holds them.
+#[test]
+fn on_foreign_plants_the_fitted_model_raises_nothing_on_the_next_minute_and_alarms_on_a_dead_band() {
+    for seed in [1, 5, 31] {
+        let rows = foreign(seed, &[], 120.0);
+        let (fitted_on, watched) = rows.split_at(rows.len() / 2);
+        let model = fit_baseline(&signals(fitted_on), &PlantParams::default(), FitOptions::default()).expect("fits");
+        let mut shadow = Shadow::new(model.clone(), DriftTest::default()).expect("shadow");
+        let unchanged = watch(&mut shadow, watched, |_, _| {});
+        assert!(
+            unchanged.is_empty(),
+            "seed {seed}: alarms on the unchanged plant at {unchanged:?} s"
+        );
+        let mut shadow = Shadow::new(model, DriftTest::default()).expect("shadow");
+        let dead_band = Hidden::Deadzone {
+            width: 0.1,
+            offset: 0.0,
+        };
+        let alarms = watch(&mut shadow, &foreign(seed, &[dead_band], 30.0), |_, _| {});
+        let first = alarms.first().copied();
+        assert!(
+            first.is_some_and(|t| t <= 10.0),
+            "seed {seed}: first alarm at {first:?} s"
+        );
+    }
 }
