@@ -64,7 +64,8 @@ pub(super) struct MissEvidence {
     pub(super) monitor_stalled_ms: f64,
     /// In words: `computer stalled` (the monitor was kept from running
     /// too), `loop CPU held` (the loop CPU's timers above fired
-    /// [`CPU_HELD_NS`] or more late together: nothing of the loop ran) or
+    /// [`CPU_HELD_NS`] or more late together while every stage answered
+    /// every reading: nothing of the loop ran) or
     /// `chain late` (the time went to the named hop alone).
     pub(super) cause: &'static str,
 }
@@ -262,7 +263,9 @@ impl Misses {
             .map(|(_, late)| *late)
             .max();
         // A late SYNC and a late frame after it add up against one deadline.
-        let held = reading_late.unwrap_or(0) + wire_late.unwrap_or(0) >= CPU_HELD_NS;
+        // A stage that spins holds the timers back too, at the loop's own
+        // priority, but never answers its readings.
+        let held = reading_late.unwrap_or(0) + wire_late.unwrap_or(0) >= CPU_HELD_NS && unanswered == 0;
         MissEvidence {
             at_s: at_ns.saturating_sub(self.started_ns) as f64 * 1e-9,
             readings: (first, last),
@@ -427,6 +430,25 @@ mod tests {
             m.tick(t * 10 * MS);
         }
         assert_eq!(m.described[0].unanswered_readings, 2, "{:?}", m.described[0]);
+    }
+
+    #[test]
+    fn a_stage_that_spins_holds_the_timers_back_but_is_the_chain_late() {
+        let mut m = Misses::new(0, MS);
+        feed(&mut m, 0..40, 0, None);
+        ticks(&mut m, 0, 40 * MS);
+        m.on_late(0, 40 * MS);
+        // The torque stage spun from reading 40 for 20 ms: the plant's
+        // next reading came 19 ms late, and reading 40 was never answered.
+        for stage in 0..STAGES.len() - 2 {
+            m.stamp(stage, 40, 40 * MS, 40 * MS + (stage as u64 + 1) * 10_000);
+        }
+        feed(&mut m, 41..45, 19 * MS, None);
+        m.on_late(2, 60 * MS);
+        ticks(&mut m, 50 * MS, 60 * MS + SETTLE_NS);
+        let e = &m.described[0];
+        assert_eq!(e.reading_late_us, Some(19_000.0), "{e:?}");
+        assert_eq!(e.cause, "chain late", "{e:?}");
     }
 
     #[test]
