@@ -173,7 +173,8 @@ pub struct WireStatus {
     pub busy_ns: u64,
     /// Since the last status: the most a frame was delivered after its
     /// last bit crossed, ns, and when that bit crossed. The wire's own
-    /// timer runs on the loop's CPU: late, the CPU ran nothing of the loop.
+    /// timer runs on the loop's CPU at the loop's priority: late, the CPU
+    /// was kept from the loop (by the host, or by a task that spins).
     pub late_max_ns: u64,
     pub late_max_due_ns: u64,
     /// Since the wire started: its wake-ups that delivered a frame 0.1 ms

@@ -1,7 +1,8 @@
 //! Each deadline miss with the evidence of where its time went: the
 //! chain's own stamps of the readings it missed, hop by hop; whether the
 //! loop's own timers fired late (the plant's period, the virtual wire's
-//! frames), which means its CPU ran nothing of the loop meanwhile; and
+//! frames), which, with every reading answered (no stage spinning), means
+//! its CPU ran nothing of the loop meanwhile; and
 //! whether this monitor, which runs on another CPU than the loop, was kept
 //! from running at the same time, which only a stall of the whole computer
 //! does.

@@ -184,7 +184,8 @@ pub(super) struct WireSummary {
     pub(super) error_frames: u64,
     /// The wire's wake-ups that delivered a frame 0.1 ms or more after its
     /// last bit crossed, and the latest one came, µs: its timer runs on
-    /// the loop's CPU, so each is time the CPU ran nothing of the loop.
+    /// the loop's CPU at the loop's priority, so each is time that CPU was
+    /// kept from the loop.
     pub(super) late_wakeups: u64,
     pub(super) late_worst_us: f64,
 }
