@@ -377,12 +377,18 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_miss_while_the_wire_delivered_late_is_the_loop_cpu_held() {
+    /// Readings 0 to 39 answered on time, and looked at: no miss yet.
+    fn forty_readings_on_time() -> Misses {
         let mut m = Misses::new(0, MS);
         feed(&mut m, 0..40, 0, None);
         ticks(&mut m, 0, 40 * MS);
         m.on_late(0, 40 * MS);
+        m
+    }
+
+    #[test]
+    fn a_miss_while_the_wire_delivered_late_is_the_loop_cpu_held() {
+        let mut m = forty_readings_on_time();
         feed(&mut m, 40..50, 0, Some((45, 0, 3 * MS)));
         // The wire's status: a frame due in reading 45's period came 3 ms
         // late; one long before the stretch is not its evidence.
@@ -398,10 +404,7 @@ mod tests {
 
     #[test]
     fn a_reading_taken_late_for_its_period_is_the_loop_cpu_held() {
-        let mut m = Misses::new(0, MS);
-        feed(&mut m, 0..40, 0, None);
-        ticks(&mut m, 0, 40 * MS);
-        m.on_late(0, 40 * MS);
+        let mut m = forty_readings_on_time();
         // The plant's timer for reading 40 fired 1.5 ms late.
         for stage in 0..STAGES.len() {
             m.stamp(stage, 40, 41_500_000, 41_500_000 + (stage as u64 + 1) * 10_000);
@@ -435,10 +438,7 @@ mod tests {
 
     #[test]
     fn a_stage_that_spins_holds_the_timers_back_but_is_the_chain_late() {
-        let mut m = Misses::new(0, MS);
-        feed(&mut m, 0..40, 0, None);
-        ticks(&mut m, 0, 40 * MS);
-        m.on_late(0, 40 * MS);
+        let mut m = forty_readings_on_time();
         // The torque stage spun from reading 40 for 20 ms: the plant's
         // next reading came 19 ms late, and reading 40 was never answered.
         for stage in 0..STAGES.len() - 2 {
