@@ -209,7 +209,8 @@ impl Misses {
         let mut unanswered = 0;
         let mut reading_late: Option<u64> = None;
         // When the stretch's readings were taken: its late timers are those
-        // due from a period before the first to the last one's deadline.
+        // due from two periods before the first to two after the last (its
+        // deadline, and the wire's frames after it).
         let mut window = (u64::MAX, 0u64);
         for seq in first..=last {
             let s = self.stamps(seq);
