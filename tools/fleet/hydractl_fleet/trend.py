@@ -57,8 +57,22 @@ class Line:
         return math.inf if self.slope else 0.0
 
     @property
+    def dof(self) -> int:
+        """The t test's degrees of freedom. A recording left out for lying
+        off the line was chosen by looking at the data, and the line
+        through the rest fits them better than chance would: each costs
+        one (without it, a steady parameter whose fits scatter, four left
+        of five, passed for a trend)."""
+        return self.points - 2 - self.left_out
+
+    @property
     def significant(self) -> bool:
-        return self.points >= MIN_POINTS and self.span_days >= MIN_SPAN_DAYS and self.t > t_quantile(self.points - 2)
+        return (
+            self.points >= MIN_POINTS
+            and self.span_days >= MIN_SPAN_DAYS
+            and self.dof >= 1
+            and self.t > t_quantile(self.dof)
+        )
 
 
 def fit_line(days: list[float], values: list[float]) -> Line | None:
@@ -216,7 +230,7 @@ def _series(name: str, points: list[tuple[float, float]], reference: float | Non
         "evidence": (
             f"{name} {'rose' if line.slope > 0 else 'fell'} from {values[0]:.4g} to {values[-1]:.4g} over "
             f"{line.span_days:.1f} days ({line.slope:+.3g} ± {line.slope_stderr:.2g} a day, t = {line.t:.1f} "
-            f"against {t_quantile(line.points - 2):.1f} over {line.points} recordings"
+            f"against {t_quantile(line.dof):.1f} over {line.points} recordings"
             f"{f', {line.left_out} failed fit(s) left out' if line.left_out else ''}); its trend now stands "
             f"{100 * away / abs(reference):+.0f} % from the reference {reference:.4g}, past the {100 * share:.0f} % allowed"
         ),
@@ -276,6 +290,6 @@ def _degrading_fit(good: list[dict], days: list[float], share: float) -> dict | 
         "slope_stderr": line.slope_stderr,
         "evidence": (
             f"the reference fits worse: validation NRMSE {first:.3f} at first, {points[-1][1]:.3f} now "
-            f"({line.slope:+.3g} a day, t = {line.t:.1f} against {t_quantile(line.points - 2):.1f})"
+            f"({line.slope:+.3g} a day, t = {line.t:.1f} against {t_quantile(line.dof):.1f})"
         ),
     }
