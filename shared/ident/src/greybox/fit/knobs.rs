@@ -65,6 +65,10 @@ pub(super) struct Free {
     pub(super) scale: Scale,
 }
 
+/// The most inertia a fit may give the rigid body, kg·m²: one that ends
+/// here has found no body at all.
+pub(super) const INERTIA_MAX: f64 = 1e5;
+
 /// The baseline's free parameters of each part. Displacement, volumes and
 /// supply pressure are the data sheet's and stay fixed: they set the scale
 /// that the data alone cannot (only β/V, D/J and the like are observable).
@@ -79,11 +83,14 @@ pub(super) fn baseline_knobs(part: Part, signals: &Signals) -> Vec<Free> {
             log(Knob::ValveDamping, 0.02, 5.0),
         ],
         Part::Mechanical if fits_load_torque(signals) => vec![
-            log(Knob::Inertia, 1e-3, 1e5),
+            log(Knob::Inertia, 1e-3, INERTIA_MAX),
             log(Knob::ViscousFriction, 1e-3, 1e5),
             linear(Knob::LoadTorque, 10.0, -1e6, 1e6),
         ],
-        Part::Mechanical => vec![log(Knob::Inertia, 1e-3, 1e5), log(Knob::ViscousFriction, 1e-3, 1e5)],
+        Part::Mechanical => vec![
+            log(Knob::Inertia, 1e-3, INERTIA_MAX),
+            log(Knob::ViscousFriction, 1e-3, 1e5),
+        ],
         // From the command to the angle alone, the flow gain sets the
         // speed, inertia against the (data sheet's) oil stiffness the
         // hydraulic mode, and viscous friction with the valve's bandwidth
@@ -94,7 +101,7 @@ pub(super) fn baseline_knobs(part: Part, signals: &Signals) -> Vec<Free> {
             log(Knob::FlowGain, 1e-7, 1e-2),
             log(Knob::ValveNaturalFrequency, 2.0, 2000.0),
             log(Knob::ValveDamping, 0.02, 5.0),
-            log(Knob::Inertia, 1e-3, 1e5),
+            log(Knob::Inertia, 1e-3, INERTIA_MAX),
             log(Knob::ViscousFriction, 1e-3, 1e5),
         ],
     }
