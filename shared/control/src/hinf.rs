@@ -2,7 +2,7 @@ use hydractl_lti::{DiscreteSiso, StateSpace, TransferFunction};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
-use crate::{require_positive, ControlError};
+use crate::{require_non_negative, require_positive, ControlError};
 
 /// Numerator of the crane paper's H∞ loop-shaping controller (its eq. 8),
 /// c4…c0, descending powers of s.
@@ -37,6 +37,13 @@ pub struct HInfinityParams {
     pub error_scale: f64,
     /// Output limit, valve command units.
     pub output_limit: f64,
+    /// Where the feedforward added beside the controller (the friction
+    /// compensation, the reference's rate) rolls off, rad/s; 0 passes it
+    /// as it is. The design's weight rolls the controller off above its
+    /// crossover to keep the encoder's noise off the valve; the
+    /// feedforward, computed from the same differenced counts, carries
+    /// that noise around the design unless it rolls off too.
+    pub feedforward_roll_off_rad_s: f64,
     /// How the controller was designed, and for which plant model: what
     /// makes it a controller for this machine. None for the paper's.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -149,6 +156,7 @@ impl Default for HInfinityParams {
             c: Vec::new(),
             error_scale: 782.0,
             output_limit: 1.0,
+            feedforward_roll_off_rad_s: 0.0,
             design: None,
         }
     }
@@ -171,6 +179,7 @@ impl HInfinity {
     pub fn new(params: HInfinityParams, ts: f64) -> Result<Self, ControlError> {
         require_positive("error_scale", params.error_scale)?;
         require_positive("output_limit", params.output_limit)?;
+        require_non_negative("feedforward_roll_off_rad_s", params.feedforward_roll_off_rad_s)?;
         let system = DiscreteSiso::from_discrete_state_space(&params.state_space()?.discretize_zoh(ts)?)?;
         Ok(Self {
             system,

@@ -57,35 +57,57 @@ fn with_the_observer(structure: Structure) -> Config {
 }
 
 #[test]
-fn with_the_observer_the_designed_hinf_tracks_within_half_again_the_pid_and_moves_the_valve_less() {
-    // The goal for the H∞ torque loop `config/sim.toml` ships, with the
-    // velocity observer: behind either outer loop, on the plant it was
+fn the_designed_hinf_tracks_within_half_again_the_pid_and_moves_the_valve_no_more() {
+    // The goal for the H∞ torque loop `config/sim.toml` ships: behind
+    // either outer loop, with either velocity estimate, on the plant it was
     // designed for and on one with a Coulomb friction the model lacks.
-    // (With the differentiator, the encoder's counts reach the command and
-    // the H∞'s travels about twice the PID's: BENCHMARKS.md.)
     let coulomb = Effect::parse("coulomb_friction:coulomb=40").expect("valid");
-    for outer in [PositionVariant::Mfc, PositionVariant::Pid] {
-        for effects in [vec![], vec![coulomb]] {
-            let run = |inner| {
-                let mut config = with_the_observer(Structure::Cascade);
-                config.control.cascade.variant = outer;
-                config.control.torque_variant = inner;
-                simulate(&config, &effects, 30.0).expect("runs")
-            };
-            let (pid, hinf) = (run(TorqueVariant::Pid), run(TorqueVariant::Hinf));
-            let (pid_rms, hinf_rms) = (pid.summary.rms_tracking_error_rad, hinf.summary.rms_tracking_error_rad);
-            let (pid_travel, hinf_travel) = (command_travel(&pid.records), command_travel(&hinf.records));
-            let case = format!("{outer:?} outer loop, effects {effects:?}");
-            assert!(
-                hinf_rms <= 1.5 * pid_rms,
-                "{case}: H∞ {hinf_rms:.4} rad rms against the PID's {pid_rms:.4}"
-            );
-            assert!(
-                hinf_travel <= pid_travel,
-                "{case}: H∞'s command travels {hinf_travel:.2}/s against the PID's {pid_travel:.2}"
-            );
+    for estimator in ["differentiator", "observer"] {
+        let config_for = match estimator {
+            "observer" => with_the_observer,
+            _ => default_config,
+        };
+        for outer in [PositionVariant::Mfc, PositionVariant::Pid] {
+            for effects in [vec![], vec![coulomb]] {
+                let run = |inner| {
+                    let mut config = config_for(Structure::Cascade);
+                    config.control.cascade.variant = outer;
+                    config.control.torque_variant = inner;
+                    simulate(&config, &effects, 30.0).expect("runs")
+                };
+                let (pid, hinf) = (run(TorqueVariant::Pid), run(TorqueVariant::Hinf));
+                let (pid_rms, hinf_rms) = (pid.summary.rms_tracking_error_rad, hinf.summary.rms_tracking_error_rad);
+                let (pid_travel, hinf_travel) = (command_travel(&pid.records), command_travel(&hinf.records));
+                let case = format!("{estimator}, {outer:?} outer loop, effects {effects:?}");
+                assert!(
+                    hinf_rms <= 1.5 * pid_rms,
+                    "{case}: H∞ {hinf_rms:.4} rad rms against the PID's {pid_rms:.4}"
+                );
+                assert!(
+                    hinf_travel <= pid_travel,
+                    "{case}: H∞'s command travels {hinf_travel:.2}/s against the PID's {pid_travel:.2}"
+                );
+            }
         }
     }
+}
+
+#[test]
+fn without_its_feedforward_roll_off_the_hinf_passes_the_encoders_noise_to_the_valve() {
+    // The friction compensation and the reference's rate carry the encoder's
+    // differenced counts; the torque PID's proportional path happens to
+    // cancel much of that noise, the H∞'s rolled-off output does not.
+    let travel = |roll_off: f64| {
+        let mut config = default_config(Structure::Cascade);
+        config.control.torque_variant = TorqueVariant::Hinf;
+        config.control.torque.hinf.feedforward_roll_off_rad_s = roll_off;
+        command_travel(&simulate(&config, &[], 10.0).expect("runs").records)
+    };
+    let (passed, rolled_off) = (travel(0.0), travel(300.0));
+    assert!(
+        rolled_off < 0.5 * passed,
+        "rolled off at 300 rad/s the command travels {rolled_off:.2}/s, passed as it is {passed:.2}/s"
+    );
 }
 
 #[test]

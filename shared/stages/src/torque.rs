@@ -24,6 +24,12 @@ pub struct TorqueStage {
     rate_blend: f64,
     previous_reference: Option<f64>,
     reference_rate: f64,
+    /// The feedforward as the H∞ loop adds it: rolled off at its
+    /// `feedforward_roll_off_rad_s` (`None` until the first period).
+    rolled_off_feedforward: Option<f64>,
+    /// The roll-off's share of each step, 1 − e^(−ω·ts); 1 passes the
+    /// feedforward as it is.
+    feedforward_blend: f64,
     /// Bumpless transfer into the H∞ loop, whose state, full of fast
     /// modes, is never forced.
     transfer: FadingTransfer,
@@ -59,6 +65,11 @@ impl TorqueStage {
             rate_blend: ts / (torque.rate_filter_s + ts),
             previous_reference: None,
             reference_rate: 0.0,
+            rolled_off_feedforward: None,
+            feedforward_blend: match config.control.torque.hinf.feedforward_roll_off_rad_s {
+                corner if corner > 0.0 => 1.0 - (-corner * ts).exp(),
+                _ => 1.0,
+            },
             transfer: FadingTransfer::new(TRANSFER_FADE_S, ts),
         })
     }
@@ -112,7 +123,12 @@ impl TorqueStage {
         let error = torque_reference - sensor.torque;
         match &mut self.inner {
             InnerLoop::Pid(pid) => pid.update(error, feedforward),
-            InnerLoop::HInfinity(hinf) => self.transfer.apply(hinf.update(error) + feedforward).clamp(-1.0, 1.0),
+            InnerLoop::HInfinity(hinf) => {
+                let previous = self.rolled_off_feedforward.unwrap_or(feedforward);
+                let rolled_off = previous + self.feedforward_blend * (feedforward - previous);
+                self.rolled_off_feedforward = Some(rolled_off);
+                self.transfer.apply(hinf.update(error) + rolled_off).clamp(-1.0, 1.0)
+            }
         }
     }
 }

@@ -50,7 +50,8 @@ pub struct IdentHinfArgs {
     #[arg(long)]
     integral_corner: Option<f64>,
     /// The weight's roll-off above this, rad/s: the sensor noise it keeps
-    /// off the valve.
+    /// off the valve. The feedforward beside the controller rolls off here
+    /// too.
     #[arg(long, default_value_t = 300.0)]
     roll_off: f64,
     /// γ over its optimum: a controller a little short of the optimum is
@@ -198,6 +199,7 @@ fn params(
         // Designed in the torque loop's own units: N·m in, command out.
         error_scale: 1.0,
         output_limit: base.control.torque.hinf.output_limit,
+        feedforward_roll_off_rad_s: args.roll_off,
         design: Some(HInfinityDesign {
             data: args.data.display().to_string(),
             plant_num: fit.tf.num().to_vec(),
