@@ -225,6 +225,16 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_negative_feedforward_roll_off_is_refused_by_name() {
+        let params = HInfinityParams {
+            feedforward_roll_off_rad_s: -300.0,
+            ..HInfinityParams::default()
+        };
+        let error = HInfinity::new(params, 0.001).expect_err("refused").to_string();
+        assert!(error.contains("feedforward_roll_off_rad_s"), "{error}");
+    }
+
+    #[test]
     fn bumpless_initialization() {
         let mut c = HInfinity::new(HInfinityParams::default(), 0.001).expect("valid");
         c.initialize_output(0.3);
