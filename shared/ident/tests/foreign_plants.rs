@@ -111,3 +111,31 @@ fn another_valve_law_is_named_added_and_then_nothing_is_missing() {
         data.description
     );
 }
+
+/// A machine's recording with readings left out (a sensor node lost for
+/// 3 s, and again for 1.5 s): the rows are missing, the time stamps say
+/// where, and the rest is diagnosed as a whole record is: the hidden dead
+/// band named first, its width within 25 %.
+#[test]
+fn a_record_with_readings_left_out_is_diagnosed_from_what_is_left() {
+    let hidden = Hidden::Deadzone {
+        width: 0.1,
+        offset: 0.0,
+    };
+    let data = foreign_plant(21, &[hidden], 60.0);
+    let gaps = [15_000..18_000, 40_000..41_500];
+    let kept = |k: &usize| !gaps.iter().any(|g| g.contains(k));
+    let columns = data
+        .record(Sensors::Full, 1)
+        .into_iter()
+        .map(|(name, column)| {
+            let column = column.into_iter().enumerate().filter(|(k, _)| kept(k)).map(|(_, v)| v);
+            (name, column.collect())
+        })
+        .collect();
+    let signals = Signals::from_dataset(&Dataset::from_columns("foreign", columns)).expect("valid signals");
+    assert_eq!(signals.breaks, vec![15_000, 37_000]);
+    let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
+    common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
+    common::named_first_within(&diagnosis, hidden, 0.25).unwrap_or_else(|e| panic!("{}: {e}", data.description));
+}

@@ -313,15 +313,27 @@ fn exported(path: &Path, window: Option<Window>) -> Result<hydractl_recording::E
     Ok(export)
 }
 
-/// Measured data for the model and identification tools: a CSV, or a
-/// recording (`.mcap`), read as the columns `mcap export-csv` writes.
+/// What the tools reading a recording do across its long gaps of
+/// missing readings (short ones are bridged either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Gaps {
+    /// Keep the longest stretch without one: for the tools that simulate
+    /// the record from end to end (`ident tf`, `ident hinf`).
+    KeepLongestStretch,
+    /// Leave the readings out, the time stamps telling where: for the
+    /// grey-box model, whose shooting segments restart after each gap.
+    LeaveOut,
+}
+
+/// Measured data for the identification tools: a CSV, or a recording
+/// (`.mcap`), read as the columns `mcap export-csv` writes.
 pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
-    load_dataset_in(path, required, None)
+    load_dataset_in(path, required, None, Gaps::KeepLongestStretch)
 }
 
 /// [`load_dataset`] of a stretch of the record: a recording's through its
 /// chunk index, reading only the chunks the window overlaps.
-pub fn load_dataset_in(path: &Path, required: &[&str], window: Option<Window>) -> Result<Dataset> {
+pub fn load_dataset_in(path: &Path, required: &[&str], window: Option<Window>, gaps: Gaps) -> Result<Dataset> {
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
         let rows = exported(path, window)?.rows;
         let values: Vec<_> = rows.iter().map(hydractl_recording::ModelRow::values).collect();
@@ -353,7 +365,7 @@ pub fn load_dataset_in(path: &Path, required: &[&str], window: Option<Window>) -
                 column.drain(..first);
             }
         }
-        keep_longest_measured_stretch(path, &mut columns);
+        mend_missing_readings(path, &mut columns, gaps);
         let data = Dataset::from_columns(&path.display().to_string(), columns);
         for name in required {
             data.column(name)?;
@@ -378,21 +390,12 @@ const MAX_BRIDGED_READINGS: usize = 20;
 /// A recording's readings where a measured sensor has no value (NaN): a
 /// gap of at most [`MAX_BRIDGED_READINGS`] between two readings with one is
 /// bridged by linear interpolation (at 1 kHz a few milliseconds, far
-/// shorter than anything the model resolves); across longer gaps the data
-/// keeps its longest stretch in which every measured sensor has a value.
-/// Both are said, with where. (The model tools need evenly spaced samples;
-/// a record too short after this is refused by them, naming its length.)
-fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) {
-    let measured: Vec<&Vec<f64>> = columns
-        .iter()
-        .filter(|(name, _)| MEASURED_COLUMNS.contains(name))
-        .map(|(_, c)| c)
-        .collect();
-    let Some(n) = measured.first().map(|c| c.len()) else {
-        return;
-    };
-    let complete = |k: usize| measured.iter().all(|c| c[k].is_finite());
-    let missing: Vec<usize> = (0..n).filter(|&k| !complete(k)).collect();
+/// shorter than anything the model resolves); the longer gaps are left
+/// out or cut at, as `gaps` says. All of it is said, with where. (A record
+/// too short after this is refused by the tools, naming its length.)
+fn mend_missing_readings(path: &Path, columns: &mut [(&str, Vec<f64>)], gaps: Gaps) {
+    let n = columns.first().map_or(0, |(_, c)| c.len());
+    let missing = incomplete_readings(columns);
     if missing.is_empty() {
         return;
     }
@@ -400,13 +403,7 @@ fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) 
     let at = |k: usize| t.as_ref().map_or(f64::NAN, |t| t[k.min(n - 1)]);
     let shown: Vec<String> = missing.iter().take(5).map(|&k| format!("{:.3} s", at(k))).collect();
     let bridged = bridge_short_gaps(columns);
-    let measured: Vec<&Vec<f64>> = columns
-        .iter()
-        .filter(|(name, _)| MEASURED_COLUMNS.contains(name))
-        .map(|(_, c)| c)
-        .collect();
-    let complete = |k: usize| measured.iter().all(|c| c[k].is_finite());
-    let missing: Vec<usize> = (0..n).filter(|&k| !complete(k)).collect();
+    let missing = incomplete_readings(columns);
     let said = format!(
         "{}: {} reading(s) have no value from a sensor (at {}{})",
         path.display(),
@@ -424,27 +421,80 @@ fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) 
         );
         return;
     }
-    // The stretches between missing readings; the longest is kept.
-    let mut best = 0..0;
-    let mut from = 0;
-    for &k in missing.iter().chain(std::iter::once(&n)) {
-        if k - from > best.len() {
-            best = from..k;
+    let bridged_said =
+        format!("{bridged} in gaps of at most {MAX_BRIDGED_READINGS} readings are bridged by linear interpolation");
+    match gaps {
+        Gaps::LeaveOut => {
+            let runs = runs_of(&missing);
+            let listed: Vec<String> = runs
+                .iter()
+                .take(5)
+                .map(|r| format!("{:.3}–{:.3} s", at(r.start), at(r.end - 1)))
+                .collect();
+            tracing::warn!(
+                "{said}; {bridged_said}; the other {} are left out, in {} gap(s) ({}{}), and the model's segments restart after each",
+                missing.len(),
+                runs.len(),
+                listed.join(", "),
+                if runs.len() > listed.len() { ", …" } else { "" }
+            );
+            let mut left_out = vec![false; n];
+            for &k in &missing {
+                left_out[k] = true;
+            }
+            for (_, column) in columns.iter_mut() {
+                let mut k = 0;
+                column.retain(|_| {
+                    k += 1;
+                    !left_out[k - 1]
+                });
+            }
         }
-        from = k + 1;
+        Gaps::KeepLongestStretch => {
+            let mut best = 0..0;
+            let mut from = 0;
+            for &k in missing.iter().chain(std::iter::once(&n)) {
+                if k - from > best.len() {
+                    best = from..k;
+                }
+                from = k + 1;
+            }
+            tracing::warn!(
+                "{said}; {bridged_said}; across the longer gaps the data keeps the longest stretch, {:.3} s to {:.3} s ({} of {} readings)",
+                at(best.start),
+                at(best.end.saturating_sub(1)),
+                best.len(),
+                n
+            );
+            for (_, column) in columns.iter_mut() {
+                column.truncate(best.end);
+                column.drain(..best.start);
+            }
+        }
     }
-    tracing::warn!(
-        "{said}; {bridged} in gaps of at most {MAX_BRIDGED_READINGS} readings are bridged by linear interpolation; \
-         across the longer gaps the data keeps the longest stretch, {:.3} s to {:.3} s ({} of {} readings)",
-        at(best.start),
-        at(best.end.saturating_sub(1)),
-        best.len(),
-        n
-    );
-    for (_, column) in columns.iter_mut() {
-        column.truncate(best.end);
-        column.drain(..best.start);
+}
+
+/// The readings where a measured sensor has no value.
+fn incomplete_readings(columns: &[(&str, Vec<f64>)]) -> Vec<usize> {
+    let measured: Vec<&Vec<f64>> = columns
+        .iter()
+        .filter(|(name, _)| MEASURED_COLUMNS.contains(name))
+        .map(|(_, c)| c)
+        .collect();
+    let n = measured.first().map_or(0, |c| c.len());
+    (0..n).filter(|&k| measured.iter().any(|c| !c[k].is_finite())).collect()
+}
+
+/// Ascending indices grouped into runs of consecutive ones.
+fn runs_of(indices: &[usize]) -> Vec<std::ops::Range<usize>> {
+    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+    for &k in indices {
+        match runs.last_mut() {
+            Some(run) if run.end == k => run.end = k + 1,
+            _ => runs.push(k..k + 1),
+        }
     }
+    runs
 }
 
 /// Fills each column's runs of NaN no longer than [`MAX_BRIDGED_READINGS`]
@@ -453,16 +503,7 @@ fn keep_longest_measured_stretch(path: &Path, columns: &mut [(&str, Vec<f64>)]) 
 /// velocity estimate). Returns how many readings that completed.
 fn bridge_short_gaps(columns: &mut [(&str, Vec<f64>)]) -> usize {
     let n = columns.first().map_or(0, |(_, c)| c.len());
-    let incomplete = |columns: &[(&str, Vec<f64>)]| {
-        (0..n)
-            .filter(|&k| {
-                columns
-                    .iter()
-                    .any(|(name, c)| MEASURED_COLUMNS.contains(name) && !c[k].is_finite())
-            })
-            .count()
-    };
-    let before = incomplete(columns);
+    let before = incomplete_readings(columns).len();
     for (_, column) in columns.iter_mut().filter(|(name, _)| *name != "t") {
         let mut k = 0;
         while k < n {
@@ -481,28 +522,48 @@ fn bridge_short_gaps(columns: &mut [(&str, Vec<f64>)]) -> usize {
             k = end;
         }
     }
-    before - incomplete(columns)
+    before - incomplete_readings(columns).len()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_short_gap_is_bridged_and_a_long_one_cut_at() {
+    /// Readings around a short gap and before a long one.
+    fn gappy_columns() -> Vec<(&'static str, Vec<f64>)> {
         let nan = f64::NAN;
         let mut theta = vec![0.0, 1.0, nan, nan, 4.0, 5.0];
         theta.extend(std::iter::repeat_n(nan, MAX_BRIDGED_READINGS + 1));
         theta.extend([9.0, 9.0]);
         let t: Vec<f64> = (0..theta.len()).map(|k| k as f64 * 0.001).collect();
         let torque = theta.iter().map(|v| 10.0 * v).collect();
-        let mut columns = vec![("t", t), ("theta", theta), ("torque", torque), ("u", vec![0.5; 29])];
-        keep_longest_measured_stretch(Path::new("run.mcap"), &mut columns);
+        vec![("t", t), ("theta", theta), ("torque", torque), ("u", vec![0.5; 29])]
+    }
+
+    #[test]
+    fn a_short_gap_is_bridged_and_a_long_one_cut_at() {
+        let mut columns = gappy_columns();
+        mend_missing_readings(Path::new("run.mcap"), &mut columns, Gaps::KeepLongestStretch);
         // The two readings between 1 and 4 lie on the line, and what was
         // derived from them too; the stretch before the long gap is the
         // longest kept.
         assert_eq!(columns[1].1, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]);
         assert_eq!(columns[2].1, vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0]);
         assert_eq!(columns[0].1.len(), 6);
+    }
+
+    #[test]
+    fn a_long_gap_is_left_out_and_the_time_stamps_say_where() {
+        let mut columns = gappy_columns();
+        mend_missing_readings(Path::new("run.mcap"), &mut columns, Gaps::LeaveOut);
+        assert_eq!(columns[1].1, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 9.0, 9.0]);
+        assert_eq!(columns[3].1.len(), 8);
+        let t = &columns[0].1;
+        assert!((t[6] - t[5] - 0.022).abs() < 1e-12, "{t:?}");
+    }
+
+    #[test]
+    fn consecutive_indices_make_one_run() {
+        assert_eq!(runs_of(&[2, 3, 4, 9, 11, 12]), vec![2..5, 9..10, 11..13]);
     }
 }

@@ -13,10 +13,19 @@ pub(super) fn delayed_command(signals: &Signals, effects: &Effects, k: usize) ->
     let shift = delay.delay_s / signals.dt;
     let whole = shift.floor();
     let fraction = shift - whole;
+    // Across readings left out the command is not known: the stretch's
+    // first stands in, as zero does before the record.
+    let first = if signals.breaks.is_empty() {
+        0
+    } else {
+        signals.stretch_start(k)
+    };
     let at = |back: f64| {
         let index = k as f64 - back;
         if index < 0.0 {
             0.0
+        } else if (index as usize) < first {
+            signals.u[first]
         } else {
             signals.u[index as usize]
         }
@@ -24,9 +33,17 @@ pub(super) fn delayed_command(signals: &Signals, effects: &Effects, k: usize) ->
     (1.0 - fraction) * at(whole) + fraction * at(whole + 1.0)
 }
 
+/// The spool after readings left out: at rest where the command holds it.
+pub(super) fn settled_spool(signals: &Signals, effects: &Effects, k: usize) -> [f64; 2] {
+    let (mut spool, mut rate) = (delayed_command(signals, effects, k), 0.0);
+    hydraulics::limit_spool(effects, &mut spool, &mut rate);
+    [spool, rate]
+}
+
 /// Command and measured motion → pressures, segment by segment, each
 /// segment starting from the measured pressures; the spool runs unbroken
-/// from the start of the record.
+/// from the start of the record, settled on the command after readings
+/// left out.
 pub(super) fn predict_hydraulic(
     plant: &PlantParams,
     effects: &Effects,
@@ -47,6 +64,9 @@ pub(super) fn predict_hydraulic(
         if next_start < segment_starts.len() && k == segment_starts[next_start] {
             pressures = [signals.p_a[k], signals.p_b[k]];
             next_start += 1;
+            if signals.breaks.binary_search(&k).is_ok() {
+                spool = settled_spool(signals, effects, k);
+            }
         }
         if k >= range.start {
             out.p_a[k] = pressures[0];

@@ -20,7 +20,9 @@
 //! on the segment (least squares, or a search on a coarse encoder's
 //! staircase): validation gives no model a freedom another lacks. The play's
 //! position comes from the data before the segment, and the spool runs
-//! through the whole record unbroken.
+//! through the whole record unbroken. Where readings were left out (a gap
+//! in the time stamps) a segment starts, and the spool starts settled on
+//! the command.
 
 mod compare;
 mod diagnose;
@@ -328,7 +330,8 @@ const MAX_WHOLE_SUBSTEPS: usize = 64;
 /// smoothed angle and velocity, and the load pressure that the smoothed
 /// acceleration asks of the model's body (the chambers' mean at the
 /// neutral pressure). The spool runs through the whole record unbroken,
-/// driven by the (delayed) command.
+/// driven by the (delayed) command, settled on it after readings left
+/// out.
 pub(crate) fn predict_whole(
     plant: &PlantParams,
     effects: &Effects,
@@ -359,7 +362,10 @@ pub(crate) fn predict_whole(
     for k in 0..range.end {
         if next_start < segment_starts.len() && k == segment_starts[next_start] {
             next_start += 1;
-            let now = machine.state();
+            let mut now = machine.state();
+            if signals.breaks.binary_search(&k).is_ok() {
+                [now.spool, now.spool_rate] = settled_spool(signals, effects, k);
+            }
             let (angle, mut velocity) = (signals.theta_smooth[k], signals.velocity[k]);
             let stuck = effects
                 .coulomb_friction
@@ -411,9 +417,14 @@ pub(crate) fn predict_whole(
     }
 }
 
-/// The segments of `range`, each at most one shooting segment long.
-pub fn segments(signals: &Signals, range: Range<usize>) -> impl Iterator<Item = Range<usize>> {
+/// The segments of `range`, each at most one shooting segment long and
+/// none across readings left out: each stretch of the record starts one.
+pub fn segments(signals: &Signals, range: Range<usize>) -> impl Iterator<Item = Range<usize>> + '_ {
     let length = ((SEGMENT_S / signals.dt).round() as usize).max(2);
-    let end = range.end;
-    range.step_by(length).map(move |start| start..(start + length).min(end))
+    signals.stretches().flat_map(move |stretch| {
+        let (start, end) = (stretch.start.max(range.start), stretch.end.min(range.end));
+        (start..end.max(start))
+            .step_by(length)
+            .map(move |first| first..(first + length).min(end))
+    })
 }

@@ -1,6 +1,8 @@
 //! The measured signals the grey-box model is compared with, in SI units,
 //! with the smoothed angle and velocity the model's segments start from.
 
+use std::ops::Range;
+
 use hydractl_plant::{EffectKind, PlantParams, PA_PER_BAR};
 
 use super::{ModelError, Part, SEGMENT_S};
@@ -44,6 +46,11 @@ pub struct Signals {
     /// (by the smoothed velocity): +1, −1, or 0 before the first. The
     /// mechanical part reads where a load sits in a play from it.
     pub last_motion: Vec<f64>,
+    /// Where the record resumes after readings left out (a sensor without
+    /// a value, rows missing from a file): the first sample of each
+    /// stretch after the first, ascending. The shooting segments restart
+    /// there and no smoothing reaches across.
+    pub breaks: Vec<usize>,
     /// Whether the record has the valve command and the chamber pressures.
     pub has_command: bool,
     pub has_pressures: bool,
@@ -103,20 +110,14 @@ impl Signals {
         let has_command = u.is_some();
         let u = u.unwrap_or_else(|| vec![0.0; n]);
         let (p_a, p_b) = (bar(p_a), bar(p_b));
-        let dt = data.sample_time()?;
-        if dt.is_nan() || dt <= 0.0 {
-            return Err(fail("fewer than two samples".to_owned()));
-        }
-        for (i, w) in t.windows(2).enumerate() {
-            let step = w[1] - w[0];
-            if (step - dt).abs() > 0.1 * dt {
-                return Err(fail(format!(
-                    "line {}: column `t`: the sample time changes from the mean {dt} s to {step} s; \
-                     the model tools need uniformly sampled data",
-                    i + 3
-                )));
-            }
-        }
+        let (median_step, breaks) = sample_time_and_breaks(&t).map_err(fail)?;
+        // Unbroken, the mean step: the same to the last digit whatever the
+        // rounding of each time stamp.
+        let dt = if breaks.is_empty() {
+            data.sample_time()?
+        } else {
+            median_step
+        };
         if let Some(i) = u.iter().position(|u| u.abs() > 1.0 + 1e-9) {
             return Err(fail(format!(
                 "line {}: column `u`: {} is outside [-1, 1] (the valve command as sent)",
@@ -124,16 +125,26 @@ impl Signals {
                 u[i]
             )));
         }
-        let duration = t[t.len() - 1] - t[0];
+        // The readings left out do not count.
+        let duration = if breaks.is_empty() {
+            t[n - 1] - t[0]
+        } else {
+            (n - 1 - breaks.len()) as f64 * dt
+        };
         if duration < 8.0 * SEGMENT_S {
             return Err(fail(format!(
-                "{duration} s of data; the model tools need at least {} s",
+                "{duration} s of data{}; the model tools need at least {} s",
+                if breaks.is_empty() {
+                    ""
+                } else {
+                    " besides the readings left out"
+                },
                 8.0 * SEGMENT_S
             )));
         }
         let half_width = ((SMOOTHING_HALF_WIDTH_S / dt).round() as usize).max(1);
-        let (theta_smooth, velocity) = local_line(&theta, dt, half_width);
-        let acceleration = local_line(&velocity, dt, half_width).1;
+        let (theta_smooth, velocity) = per_stretch(&breaks, &theta, |x| local_line(x, dt, half_width));
+        let acceleration = per_stretch(&breaks, &velocity, |x| local_line(x, dt, half_width)).1;
         let last_motion = last_motion(&velocity);
         Ok(Self {
             source,
@@ -148,6 +159,7 @@ impl Signals {
             velocity,
             acceleration,
             last_motion,
+            breaks,
             has_command,
             has_pressures,
         })
@@ -184,11 +196,76 @@ impl Signals {
         }
     }
 
+    /// The stretches of consecutive readings: the whole record, or the
+    /// pieces between the readings left out.
+    pub fn stretches(&self) -> impl Iterator<Item = Range<usize>> + '_ {
+        let starts = std::iter::once(0).chain(self.breaks.iter().copied());
+        let ends = self.breaks.iter().copied().chain(std::iter::once(self.len()));
+        starts.zip(ends).map(|(start, end)| start..end)
+    }
+
+    /// The first sample of the stretch that holds sample `k`.
+    pub fn stretch_start(&self, k: usize) -> usize {
+        match self.breaks.partition_point(|&b| b <= k) {
+            0 => 0,
+            i => self.breaks[i - 1],
+        }
+    }
+
     /// The first sample of the validation segment: the estimation segment
     /// is the first `estimation_fraction` of the record.
     pub fn split(&self, estimation_fraction: f64) -> usize {
         ((self.len() as f64 * estimation_fraction).round() as usize).clamp(1, self.len() - 1)
     }
+}
+
+/// The sample time, the median step of `t`, and the samples after each
+/// step of a whole number of sample times (readings left out). Any other
+/// step is an error naming its line.
+fn sample_time_and_breaks(t: &[f64]) -> Result<(f64, Vec<usize>), String> {
+    let mut steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return Err("fewer than two samples".to_owned());
+    }
+    steps.sort_by(f64::total_cmp);
+    let dt = steps[steps.len() / 2];
+    if dt.is_nan() || dt <= 0.0 {
+        return Err("column `t` does not increase".to_owned());
+    }
+    let mut breaks = Vec::new();
+    for (i, w) in t.windows(2).enumerate() {
+        let periods = (w[1] - w[0]) / dt;
+        let whole = periods.round();
+        if (periods - whole).abs() > 0.1 || whole < 1.0 {
+            return Err(format!(
+                "line {}: column `t`: the sample time changes from {dt} s to {} s; \
+                 the model tools need uniformly sampled data (rows may be missing, not moved)",
+                i + 3,
+                w[1] - w[0]
+            ));
+        }
+        if whole > 1.0 {
+            breaks.push(i + 1);
+        }
+    }
+    Ok((dt, breaks))
+}
+
+/// `smooth` applied to each stretch of `x` between `breaks` on its own,
+/// the pieces joined again.
+fn per_stretch(breaks: &[usize], x: &[f64], smooth: impl Fn(&[f64]) -> (Vec<f64>, Vec<f64>)) -> (Vec<f64>, Vec<f64>) {
+    if breaks.is_empty() {
+        return smooth(x);
+    }
+    let (mut level, mut slope) = (Vec::with_capacity(x.len()), Vec::with_capacity(x.len()));
+    let starts = std::iter::once(0).chain(breaks.iter().copied());
+    let ends = breaks.iter().copied().chain(std::iter::once(x.len()));
+    for (start, end) in starts.zip(ends) {
+        let (l, s) = smooth(&x[start..end]);
+        level.extend(l);
+        slope.extend(s);
+    }
+    (level, slope)
 }
 
 /// The direction of the last motion at or before each sample: the sign of
@@ -348,6 +425,66 @@ mod tests {
         let all_empty: Vec<(&str, usize)> = (0..5000).flat_map(|i| [("p_a", i), ("p_b", i)]).collect();
         let data = record(&["u", "p_a", "p_b", "theta"], &all_empty);
         assert_eq!(Signals::from_dataset(&data).expect("valid").parts(), [Part::Whole]);
+    }
+
+    /// `data` without the rows in `left_out`, as a file with rows missing.
+    fn without_rows(data: &Dataset, names: &[&str], left_out: Range<usize>) -> Dataset {
+        let columns = std::iter::once("t")
+            .chain(names.iter().copied())
+            .map(|name| {
+                let column = data.column(name).expect("column");
+                let kept = column[..left_out.start].iter().chain(&column[left_out.end..]);
+                (name, kept.copied().collect())
+            })
+            .collect();
+        Dataset::from_columns("record.csv", columns)
+    }
+
+    #[test]
+    fn rows_missing_break_the_record_and_nothing_reaches_across() {
+        let names = ["u", "p_a", "p_b", "theta"];
+        let whole = record(&names, &[]);
+        let broken = Signals::from_dataset(&without_rows(&whole, &names, 1200..2000)).expect("valid");
+        assert_eq!(broken.breaks, vec![1200]);
+        assert!((broken.dt - 1e-3).abs() < 1e-12, "{}", broken.dt);
+        assert_eq!(broken.stretches().collect::<Vec<_>>(), vec![0..1200, 1200..4200]);
+        assert_eq!((broken.stretch_start(1199), broken.stretch_start(1200)), (0, 1200));
+        // A segment starts where the record resumes; none crosses.
+        let segments: Vec<_> = crate::greybox::segments(&broken, 0..broken.len()).collect();
+        assert!(segments.iter().any(|s| s.start == 1200));
+        assert!(
+            segments.iter().all(|s| s.end <= 1200 || s.start >= 1200),
+            "{segments:?}"
+        );
+        // Each side of the jump, the velocity is its own stretch's slope,
+        // not a line through the jump.
+        let slope = |t: f64| 0.3 * (3.0 * t).cos();
+        for (k, t) in [(1190, 1.19), (1230, 2.03)] {
+            assert!(
+                (broken.velocity[k] - slope(t)).abs() < 1e-3,
+                "{k}: {}",
+                broken.velocity[k]
+            );
+        }
+        // Moved, not missing: an error naming the line.
+        let mut t = whole.column("t").expect("t").to_vec();
+        t[3000] += 0.0005;
+        let moved = Dataset::from_columns(
+            "record.csv",
+            vec![
+                ("t", t),
+                ("theta", whole.column("theta").expect("theta").to_vec()),
+                ("u", whole.column("u").expect("u").to_vec()),
+            ],
+        );
+        assert!(reason(&moved).contains("line 3002"), "{}", reason(&moved));
+        // Too little left.
+        let short = without_rows(&whole, &names, 500..4000);
+        assert!(
+            reason(&short).contains("besides the readings left out"),
+            "{}",
+            reason(&short)
+        );
     }
 
     #[test]
