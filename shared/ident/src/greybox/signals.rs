@@ -18,7 +18,8 @@ pub const COLUMNS: &str =
 
 /// Half-width of the smoothing that turns encoder counts into a velocity, s.
 /// Wide enough that one count of a 4000-count encoder moves the velocity by
-/// under 0.01 rad/s, narrow against the 13 rad/s hydraulic mode.
+/// under 0.01 rad/s, narrow against the 13 rad/s hydraulic mode; a coarser
+/// encoder's is wider ([`smoothing_half_width`]).
 const SMOOTHING_HALF_WIDTH_S: f64 = 0.02;
 
 /// Measured data at a uniform sample time, SI units. A signal that was not
@@ -142,7 +143,7 @@ impl Signals {
                 8.0 * SEGMENT_S
             )));
         }
-        let half_width = ((SMOOTHING_HALF_WIDTH_S / dt).round() as usize).max(1);
+        let half_width = smoothing_half_width(crate::greybox::fit::encoder_step(&theta), dt);
         let (theta_smooth, velocity) = per_stretch(&breaks, &theta, |x| local_line(x, dt, half_width));
         let acceleration = per_stretch(&breaks, &velocity, |x| local_line(x, dt, half_width)).1;
         let last_motion = last_motion(&velocity);
@@ -217,6 +218,25 @@ impl Signals {
     pub fn split(&self, estimation_fraction: f64) -> usize {
         ((self.len() as f64 * estimation_fraction).round() as usize).clamp(1, self.len() - 1)
     }
+}
+
+/// How far a count moves the smoothed velocity at most, rad/s.
+const COUNT_VELOCITY: f64 = 0.01;
+
+/// The widest smoothing, s, for a coarse encoder.
+const MAX_SMOOTHING_HALF_WIDTH_S: f64 = 0.1;
+
+/// The smoothing's half-width, samples: [`SMOOTHING_HALF_WIDTH_S`], wider
+/// for a coarse encoder (`step`, rad), so that a count entering the window
+/// moves the velocity by under [`COUNT_VELOCITY`] (by 1.5 step / (w² dt)).
+fn smoothing_half_width(step: f64, dt: f64) -> usize {
+    let least = SMOOTHING_HALF_WIDTH_S / dt;
+    let for_count = (1.5 * step / (COUNT_VELOCITY * dt)).sqrt();
+    for_count
+        .min(MAX_SMOOTHING_HALF_WIDTH_S / dt)
+        .max(least)
+        .round()
+        .max(1.0) as usize
 }
 
 /// The sample time, the median step of `t`, and the samples after each
@@ -485,6 +505,17 @@ mod tests {
             "{}",
             reason(&short)
         );
+    }
+
+    #[test]
+    fn a_coarse_encoder_is_smoothed_wider() {
+        let counts = |n: f64| std::f64::consts::TAU / n;
+        // 4000 counts: the default 20 ms; 2°: 72 ms; 10°: the widest.
+        assert_eq!(smoothing_half_width(counts(4000.0), 1e-3), 20);
+        assert_eq!(smoothing_half_width(counts(180.0), 1e-3), 72);
+        assert_eq!(smoothing_half_width(counts(36.0), 1e-3), 100);
+        // Continuous with noise: the default.
+        assert_eq!(smoothing_half_width(1e-9, 1e-3), 20);
     }
 
     #[test]
