@@ -126,9 +126,33 @@ impl TorqueStage {
             InnerLoop::HInfinity(hinf) => {
                 let previous = self.rolled_off_feedforward.unwrap_or(feedforward);
                 let rolled_off = previous + self.feedforward_blend * (feedforward - previous);
-                self.rolled_off_feedforward = Some(rolled_off);
+                // A non-finite feedforward reaches the valve, which refuses
+                // it, this period only: the roll-off does not keep it.
+                if rolled_off.is_finite() {
+                    self.rolled_off_feedforward = Some(rolled_off);
+                }
                 self.transfer.apply(hinf.update(error) + rolled_off).clamp(-1.0, 1.0)
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_hinf_roll_off_lets_a_non_finite_feedforward_through_once_and_keeps_none() {
+        let config = Config::default_sim().expect("the built-in config is valid");
+        assert!(config.control.torque.hinf.feedforward_roll_off_rad_s > 0.0);
+        let mut stage = TorqueStage::with_variant(&config, TorqueVariant::Hinf).expect("builds");
+        let (position, sensor) = (PositionOutput::default(), SensorEstimate::default());
+        let steady = stage.process(&position, &sensor, 0.2);
+        assert!(stage.process(&position, &sensor, f64::NAN).is_nan());
+        let after = stage.process(&position, &sensor, 0.2);
+        assert!(
+            after.is_finite() && (after - steady).abs() < 1e-3,
+            "{steady} then {after}"
+        );
     }
 }
