@@ -525,6 +525,9 @@ pub fn write_with(
     for n in &diagnosis.not_judged {
         let _ = write!(html, "<li>not judged: <b>{}</b>: {}</li>", n.effect, escape(&n.reason));
     }
+    if let Some(said) = signals.gaps_said() {
+        let _ = write!(html, "<li>{}</li>", escape(&said));
+    }
     html += "</ul>";
     html += "<h2>Fit per output</h2><table><tr><th>output</th><th>fit %</th><th>NRMSE</th></tr>";
     for o in &comparison.outputs {

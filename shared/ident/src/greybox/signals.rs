@@ -205,6 +205,28 @@ impl Signals {
         starts.zip(ends).map(|(start, end)| start..end)
     }
 
+    /// Each gap of readings left out: the times of the readings either
+    /// side of it, s.
+    pub fn gaps(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        self.breaks.iter().map(|&k| (self.t[k - 1], self.t[k]))
+    }
+
+    /// What the readings left out come to, for a person: none, or how
+    /// many gaps, how long in all, and where the first few are.
+    pub fn gaps_said(&self) -> Option<String> {
+        if self.breaks.is_empty() {
+            return None;
+        }
+        let total: f64 = self.gaps().map(|(before, after)| after - before - self.dt).sum();
+        let shown: Vec<String> = self.gaps().take(5).map(|(a, b)| format!("{a:.3}–{b:.3} s")).collect();
+        Some(format!(
+            "readings left out in {} gap(s), {total:.3} s in all (between {}{}); the segments restart after each",
+            self.breaks.len(),
+            shown.join(", "),
+            if self.breaks.len() > shown.len() { ", …" } else { "" }
+        ))
+    }
+
     /// The first sample of the stretch that holds sample `k`.
     pub fn stretch_start(&self, k: usize) -> usize {
         match self.breaks.partition_point(|&b| b <= k) {
@@ -469,6 +491,11 @@ mod tests {
         assert!((broken.dt - 1e-3).abs() < 1e-12, "{}", broken.dt);
         assert_eq!(broken.stretches().collect::<Vec<_>>(), vec![0..1200, 1200..4200]);
         assert_eq!((broken.stretch_start(1199), broken.stretch_start(1200)), (0, 1200));
+        let said = broken.gaps_said().expect("a gap");
+        assert!(
+            said.starts_with("readings left out in 1 gap(s), 0.800 s in all (between 1.199–2.000 s)"),
+            "{said}"
+        );
         // A segment starts where the record resumes; none crosses.
         let segments: Vec<_> = crate::greybox::segments(&broken, 0..broken.len()).collect();
         assert!(segments.iter().any(|s| s.start == 1200));

@@ -166,20 +166,8 @@ pub fn load_signals(data: &DataArgs) -> Result<Signals> {
     let is_recording = data.data.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
     // A recording's gaps were said as they were left out; a file's rows
     // missing are said here.
-    if !signals.breaks.is_empty() && !is_recording {
-        let at: Vec<String> = signals
-            .breaks
-            .iter()
-            .take(5)
-            .map(|&k| format!("{:.3}–{:.3} s", signals.t[k - 1], signals.t[k]))
-            .collect();
-        tracing::warn!(
-            "{}: rows are missing in {} place(s) (between {}{}); the model's segments restart after each",
-            data.data.display(),
-            signals.breaks.len(),
-            at.join(", "),
-            if signals.breaks.len() > at.len() { ", …" } else { "" }
-        );
+    if let Some(said) = signals.gaps_said().filter(|_| !is_recording) {
+        tracing::warn!("{}: rows are missing: {said}", data.data.display());
     }
     Ok(signals)
 }
