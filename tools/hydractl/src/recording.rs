@@ -313,6 +313,11 @@ fn exported(path: &Path, window: Option<Window>) -> Result<hydractl_recording::E
     Ok(export)
 }
 
+/// Whether `path` names a recording (`.mcap`) rather than a CSV.
+pub fn is_recording(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+}
+
 /// What the tools reading a recording do across its long gaps of
 /// missing readings (short ones are bridged either way).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -334,7 +339,7 @@ pub fn load_dataset(path: &Path, required: &[&str]) -> Result<Dataset> {
 /// [`load_dataset`] of a stretch of the record: a recording's through its
 /// chunk index, reading only the chunks the window overlaps.
 pub fn load_dataset_in(path: &Path, required: &[&str], window: Option<Window>, gaps: Gaps) -> Result<Dataset> {
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap")) {
+    if is_recording(path) {
         let rows = exported(path, window)?.rows;
         let values: Vec<_> = rows.iter().map(hydractl_recording::ModelRow::values).collect();
         let mut columns: Vec<(&str, Vec<f64>)> = MODEL_COLUMNS

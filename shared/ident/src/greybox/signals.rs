@@ -200,9 +200,7 @@ impl Signals {
     /// The stretches of consecutive readings: the whole record, or the
     /// pieces between the readings left out.
     pub fn stretches(&self) -> impl Iterator<Item = Range<usize>> + '_ {
-        let starts = std::iter::once(0).chain(self.breaks.iter().copied());
-        let ends = self.breaks.iter().copied().chain(std::iter::once(self.len()));
-        starts.zip(ends).map(|(start, end)| start..end)
+        stretches_between(&self.breaks, self.len())
     }
 
     /// Each gap of readings left out: the times of the readings either
@@ -293,6 +291,14 @@ fn sample_time_and_breaks(t: &[f64]) -> Result<(f64, Vec<usize>), String> {
     Ok((dt, breaks))
 }
 
+/// The stretches of `len` samples between `breaks` (ascending, each the
+/// first sample after a gap).
+fn stretches_between(breaks: &[usize], len: usize) -> impl Iterator<Item = Range<usize>> + '_ {
+    let starts = std::iter::once(0).chain(breaks.iter().copied());
+    let ends = breaks.iter().copied().chain(std::iter::once(len));
+    starts.zip(ends).map(|(start, end)| start..end)
+}
+
 /// `smooth` applied to each stretch of `x` between `breaks` on its own,
 /// the pieces joined again.
 fn per_stretch(breaks: &[usize], x: &[f64], smooth: impl Fn(&[f64]) -> (Vec<f64>, Vec<f64>)) -> (Vec<f64>, Vec<f64>) {
@@ -300,10 +306,8 @@ fn per_stretch(breaks: &[usize], x: &[f64], smooth: impl Fn(&[f64]) -> (Vec<f64>
         return smooth(x);
     }
     let (mut level, mut slope) = (Vec::with_capacity(x.len()), Vec::with_capacity(x.len()));
-    let starts = std::iter::once(0).chain(breaks.iter().copied());
-    let ends = breaks.iter().copied().chain(std::iter::once(x.len()));
-    for (start, end) in starts.zip(ends) {
-        let (l, s) = smooth(&x[start..end]);
+    for stretch in stretches_between(breaks, x.len()) {
+        let (l, s) = smooth(&x[stretch]);
         level.extend(l);
         slope.extend(s);
     }

@@ -163,7 +163,7 @@ pub fn load_signals(data: &DataArgs) -> Result<Signals> {
         crate::recording::Gaps::LeaveOut,
     )?;
     let signals = Signals::from_dataset(&dataset)?;
-    let is_recording = data.data.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    let is_recording = crate::recording::is_recording(&data.data);
     // A recording's gaps were said as they were left out; a file's rows
     // missing are said here.
     if let Some(said) = signals.gaps_said().filter(|_| !is_recording) {
