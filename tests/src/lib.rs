@@ -29,6 +29,8 @@
 //! -9`s accounted for in the summary.
 
 pub mod can;
+mod stall;
+pub use stall::stall_report;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -458,7 +460,12 @@ pub fn hydractl_in(scope: &RunScope, args: &[&str]) -> Output {
 /// `hydractl status --json`.
 pub fn status(scope: &RunScope) -> serde_json::Value {
     let out = hydractl_in(scope, &["status", "--json"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}; {}",
+        String::from_utf8_lossy(&out.stderr),
+        stall_report(scope)
+    );
     serde_json::from_slice(&out.stdout).expect("status json")
 }
 
