@@ -409,44 +409,12 @@ fn a_controller_whose_commands_keep_being_rejected_is_restarted_into_its_fallbac
     );
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     assert_eq!(process(&status(&scope), "torque")["variant"], "pid");
-    // A second publisher on the torque service sends NaN commands for the
-    // newest readings for 200 ms: an inner loop gone wrong, reading after
-    // reading. (The controllers themselves hold their last output on a
-    // NaN input, so garbage has to be injected.)
-    let bus = hydractl_bus::Bus::open(&scope, "injector").expect("node");
-    let injector: hydractl_bus::Outlet<TorqueSample> =
-        hydractl_bus::Outlet::open(&bus, service::TORQUE).expect("outlet");
-    let since = std::time::Instant::now();
-    let mut seq = 0;
-    let (mut run_of_rejected, mut longest) = (0, 0);
-    let mut flags = std::collections::BTreeMap::<u32, usize>::new();
-    while since.elapsed() < Duration::from_millis(200) {
-        while let Ok(Some(v)) = observer.valve.next() {
-            assert!(v.command.is_finite(), "the valve never passes NaN on: {v:?}");
-            seq = seq.max(v.sensor_seq);
-            *flags.entry(v.faults).or_default() += 1;
-            run_of_rejected = if v.faults & fault::NOT_FINITE != 0 {
-                run_of_rejected + 1
-            } else {
-                0
-            };
-            longest = longest.max(run_of_rejected);
-        }
-        injector
-            .publish(TorqueSample {
-                sensor_seq: seq,
-                command: f64::NAN,
-                ..TorqueSample::default()
-            })
-            .expect("publish");
-        std::thread::sleep(Duration::from_micros(200));
-    }
-    drop(injector);
-    drop(bus);
+    let (flags, longest) = flood_torque_with_nan(&scope, &observer);
     observer.drain_valve();
     assert!(
         observer.wait_healthy(300, Duration::from_secs(5)),
-        "the loop carries on"
+        "the loop carries on; {}",
+        stall_report(&scope)
     );
     assert_eq!(
         process(&status(&scope), "torque")["variant"],
@@ -467,6 +435,82 @@ fn a_controller_whose_commands_keep_being_rejected_is_restarted_into_its_fallbac
         faults.iter().all(|f| f["process"] == "torque"),
         "only the culprit: {summary}"
     );
+    drop(observer);
+}
+
+#[test]
+fn a_fallback_that_tracks_far_worse_falls_back_to_the_pid_and_the_summary_gives_both_figures() {
+    let _turn = serial();
+    let scope = unique_scope("badfallback");
+    let dir = scratch_dir("badfallback");
+    // The designed H∞ as the fallback, its output held within 2 % of the
+    // valve's range: its design validates, but on this machine it lets
+    // the load drift (offline, 0.39 rad rms from a second after it takes
+    // over, against 0.004 before).
+    let config = config_from_default(&dir, "bad_fallback.toml", |sim| {
+        sim.replace("fallback_variants = {}", "fallback_variants = { torque = \"hinf\" }")
+            .replace("\noutput_limit = 1.0", "\noutput_limit = 0.02")
+    });
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            "40",
+            "--summary-json",
+            summary.to_str().expect("path"),
+        ],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    flood_torque_with_nan(&scope, &observer);
+    // Restarted as H∞, judged 1 s after its first output over 2 s, then
+    // restarted as the PID and judged again.
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let mut variants = Vec::new();
+    while std::time::Instant::now() < deadline {
+        let variant = process(&status(&scope), "torque")["variant"].clone();
+        if variants.last() != Some(&variant) {
+            variants.push(variant.clone());
+        }
+        if variant == "pid" && variants.iter().any(|v| v == "hinf") {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        variants.windows(2).any(|w| w[0] == "hinf" && w[1] == "pid"),
+        "torque ran {variants:?}; {}",
+        stall_report(&scope)
+    );
+    observer.drain_valve();
+    assert!(
+        observer.wait_healthy(300, Duration::from_secs(5)),
+        "the PID runs the loop; {}",
+        stall_report(&scope)
+    );
+    // The PID's own judgement, then the run's end.
+    std::thread::sleep(Duration::from_secs(4));
+    let rms = observer.tracking_rms(Duration::from_secs(1));
+    assert!(rms < 0.05, "the PID tracks again: {rms} rad rms");
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary = read_json(&summary);
+    let judged = summary["fallbacks_judged"].as_array().expect("fallbacks_judged");
+    let hinf = judged.iter().find(|j| j["variant"] == "hinf").expect("the H∞ judged");
+    assert_eq!(hinf["stage"], "torque");
+    assert_eq!(hinf["outcome"], "fell_back", "{hinf}");
+    assert_eq!(hinf["then_runs"], "pid", "{hinf}");
+    let (before, after) = (
+        hinf["tracking_rms_before_rad"].as_f64().expect("before"),
+        hinf["tracking_rms_after_rad"].as_f64().expect("after"),
+    );
+    assert!(after > 2.0 * before && after > 0.1, "{hinf}");
+    let pid = judged.iter().find(|j| j["variant"] == "pid").expect("the PID judged");
+    assert_eq!(pid["outcome"], "kept", "{pid}");
+    assert!(pid["tracking_rms_after_rad"].as_f64().expect("after") < 0.1, "{pid}");
     drop(observer);
 }
 
@@ -530,4 +574,44 @@ fn a_limit_cycling_torque_loop_is_held_neutral_and_restarted_into_its_fallback_v
         "{summary}"
     );
     drop(observer);
+}
+
+/// A second publisher on the torque service sends NaN commands for the
+/// newest readings for 200 ms: an inner loop gone wrong, reading after
+/// reading. (The controllers themselves hold their last output on a NaN
+/// input, so garbage has to be injected.) Returns the valve's flags seen
+/// meanwhile, counted, and the longest run of rejected commands.
+fn flood_torque_with_nan(
+    scope: &hydractl_bus::RunScope,
+    observer: &Observer,
+) -> (std::collections::BTreeMap<u32, usize>, usize) {
+    let bus = hydractl_bus::Bus::open(scope, "injector").expect("node");
+    let injector: hydractl_bus::Outlet<TorqueSample> =
+        hydractl_bus::Outlet::open(&bus, service::TORQUE).expect("outlet");
+    let since = std::time::Instant::now();
+    let mut seq = 0;
+    let (mut run_of_rejected, mut longest) = (0, 0);
+    let mut flags = std::collections::BTreeMap::<u32, usize>::new();
+    while since.elapsed() < Duration::from_millis(200) {
+        while let Ok(Some(v)) = observer.valve.next() {
+            assert!(v.command.is_finite(), "the valve never passes NaN on: {v:?}");
+            seq = seq.max(v.sensor_seq);
+            *flags.entry(v.faults).or_default() += 1;
+            run_of_rejected = if v.faults & fault::NOT_FINITE != 0 {
+                run_of_rejected + 1
+            } else {
+                0
+            };
+            longest = longest.max(run_of_rejected);
+        }
+        injector
+            .publish(TorqueSample {
+                sensor_seq: seq,
+                command: f64::NAN,
+                ..TorqueSample::default()
+            })
+            .expect("publish");
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    (flags, longest)
 }

@@ -5,6 +5,7 @@
 //! `supervisor` binary wires it to its node and ticks it.
 
 mod child;
+mod fallback_watch;
 mod faults;
 mod heartbeats;
 mod recorder;
@@ -27,6 +28,7 @@ use hydractl_samples::{
 };
 
 use child::{Supervised, PIPELINE};
+use fallback_watch::{judge_fallback, FallbackWatch, StageFallbacks};
 
 use faults::{after_limit_cycle, blamed_for_rejections, cpu_times, is_hung, Comeback, CpuWatch, Fault, Liveness};
 use heartbeats::{Heartbeats, OuterLoopWatch};
@@ -78,6 +80,8 @@ pub struct Supervisor {
     position_output_finite: bool,
     /// The newest rejected command already acted on.
     misbehaving_handled: Option<u64>,
+    /// Each stage's restart into a fallback variant, watched until judged.
+    fallbacks: Vec<StageFallbacks>,
     /// Each loop process's use of its CPU.
     cpu: Vec<CpuWatch>,
     /// The previous round: a round that comes late means the supervisor
@@ -148,6 +152,10 @@ impl Supervisor {
                         as u64,
                     factor: config.supervisor.swap_rollback_factor,
                     floor_rad: config.supervisor.swap_rollback_min_rms_rad,
+                    fallback_settle_readings: (config.supervisor.fallback_settle_ms as f64
+                        / 1000.0
+                        / config.timing.control_period())
+                    .round() as u64,
                 },
             )?,
             seat,
@@ -161,6 +169,7 @@ impl Supervisor {
             restarting: vec![true; count],
             position_output_finite: true,
             misbehaving_handled: None,
+            fallbacks: vec![StageFallbacks::default(); count],
             cpu: vec![CpuWatch::default(); count],
             last_tick: None,
             strangers: Strangers::new(),
@@ -222,6 +231,7 @@ impl Supervisor {
             restarting,
             position_output_finite,
             misbehaving_handled,
+            fallbacks,
             cpu,
             last_tick,
             strangers,
@@ -259,6 +269,9 @@ impl Supervisor {
                 // only now, is not its successor's (it closed a limit
                 // cycle's 500 ms wait as 11 ms, and an 8 s one as 14 ms).
                 let from_successor = children[i].answered_by_current(answer.time_ns);
+                if let Some(watch) = fallbacks[i].watch.as_mut().filter(|_| from_successor) {
+                    watch.answered(answer.seq, swaps.tracking().1);
+                }
                 if let Some(fault) = faults[i].take_if(|_| from_successor) {
                     swaps.publish_fault(children[i].name, fault, Some(now))?;
                 }
@@ -329,11 +342,13 @@ impl Supervisor {
                     (EventKind::Misbehaving, "garbage")
                 };
                 let from = child.variant;
-                let fallback = policy
-                    .fallback_variants
-                    .get(child.name)
-                    .and_then(|v| code::variant_code(v))
-                    .map(code::variant_name);
+                let fallback = fallbacks[i].allowed(
+                    policy
+                        .fallback_variants
+                        .get(child.name)
+                        .and_then(|v| code::variant_code(v))
+                        .map(code::variant_name),
+                );
                 let comeback = match (limit_cycling, from) {
                     (true, Some(running)) => {
                         child.limit_cycles += 1;
@@ -352,6 +367,15 @@ impl Supervisor {
                 };
                 if let Comeback::Restart { variant, .. } = comeback {
                     child.variant = Some(variant);
+                    // Into another variant: judged by the tracking that follows.
+                    if let (Some(failed), Some(newest)) = (from.filter(|&f| f != variant), rejected.newest) {
+                        let (tracking, judge, _) = swaps.tracking();
+                        let fault = (
+                            newest.saturating_sub(rejected.count),
+                            last_reading.map_or(newest, |r| r.sensor_seq.max(newest)),
+                        );
+                        fallbacks[i].watch = FallbackWatch::new(failed, variant, fault, tracking, judge, now);
+                    }
                 }
                 faults[i] = Some(Fault {
                     kind,
@@ -392,6 +416,10 @@ impl Supervisor {
                     heartbeats.outer_loop().reset();
                 }
             }
+        }
+        for (stage, child) in fallbacks.iter_mut().zip(children.iter_mut()) {
+            let at_seq = last_reading.map_or(0, |r| r.sensor_seq);
+            cleanup_needed |= judge_fallback(stage, child, swaps, policy, at_seq, now)?;
         }
         // A round this late means the supervisor did not run either: the
         // whole computer stalled, and a process quiet through it is not hung.

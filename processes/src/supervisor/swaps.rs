@@ -61,6 +61,8 @@ pub(super) struct SwapJudge {
     pub(super) readings: u64,
     pub(super) factor: f64,
     pub(super) floor_rad: f64,
+    /// A fallback is judged from this many readings after its first answer.
+    pub(super) fallback_settle_readings: u64,
 }
 
 /// A swap that undoes the one before: what it undoes, and why.
@@ -144,8 +146,9 @@ impl Swaps {
             amplifier_neutral_from: None,
             last_silence: None,
             period_ns: period.as_nanos().max(1) as u64,
-            // Twice the watched readings: as many before the switch.
-            tracking: TrackingLog::with_capacity((2 * judge.readings + 1000) as usize),
+            // Twice the watched readings: as many before the switch; a
+            // fallback's settle besides.
+            tracking: TrackingLog::with_capacity((2 * judge.readings + judge.fallback_settle_readings + 1000) as usize),
             judge,
         })
     }
@@ -534,6 +537,38 @@ impl Swaps {
             }
             (a, b) => a.or(b),
         }
+    }
+
+    /// The loop's tracking error by reading, and how a change is judged
+    /// by it: what a fallback is judged by too.
+    pub(super) fn tracking(&self) -> (&TrackingLog, &SwapJudge, Duration) {
+        (&self.tracking, &self.judge, Duration::from_nanos(self.period_ns))
+    }
+
+    /// A fallback judged: `to` is what runs now ("" for nothing).
+    pub(super) fn publish_judged_fallback(
+        &mut self,
+        stage: &str,
+        (from, to): (&str, &str),
+        at_seq: u64,
+        (rms_before, rms_after): (f64, f64),
+    ) -> Result<()> {
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            sensor_seq: at_seq,
+            tracking_rms_before_rad: rms_before,
+            tracking_rms_after_rad: rms_after,
+            valve_safe_after_periods: u64::MAX,
+            restarted_after_ns: u64::MAX,
+            kind: EventKind::FallbackJudged.code(),
+            process: fixed_name(stage),
+            from: fixed_name(from),
+            to: fixed_name(to),
+            ..SupervisorEvent::default()
+        })?;
+        self.event_seq += 1;
+        Ok(())
     }
 
     /// The new process of a swap under way.

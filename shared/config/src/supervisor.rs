@@ -46,8 +46,12 @@ pub struct SupervisorConfig {
     /// is swapped back…
     pub swap_rollback_factor: f64,
     /// …when its rms is above this too, rad: a loop tracking within noise
-    /// stays whatever the ratio.
+    /// stays whatever the ratio. A fault's restart into a fallback variant
+    /// is judged the same way against the tracking before the fault, after…
     pub swap_rollback_min_rms_rad: f64,
+    /// …this long from its first output: the load coming back after the
+    /// valve was held neutral is not the variant's tracking.
+    pub fallback_settle_ms: u64,
 }
 
 impl Default for SupervisorConfig {
@@ -70,6 +74,7 @@ impl Default for SupervisorConfig {
             swap_judge_ms: 2000,
             swap_rollback_factor: 2.0,
             swap_rollback_min_rms_rad: 0.1,
+            fallback_settle_ms: 1000,
         }
     }
 }

@@ -36,11 +36,15 @@ pub enum EventKind {
     /// A process that is none of the run's publishes on one of its
     /// services (`process`: the service, `pid`: the stranger).
     Stranger,
+    /// A controller restarted into another variant after a fault, judged
+    /// by the tracking that followed: kept (`to` the same variant), fallen
+    /// further back (`to` the next), or left down (`to` empty).
+    FallbackJudged,
 }
 
 impl EventKind {
     /// Every kind, in the order of their codes.
-    pub const ALL: [EventKind; 10] = [
+    pub const ALL: [EventKind; 11] = [
         Self::Swap,
         Self::SwapFailed,
         Self::Crash,
@@ -51,6 +55,7 @@ impl EventKind {
         Self::LimitCycle,
         Self::Spin,
         Self::Stranger,
+        Self::FallbackJudged,
     ];
 
     /// The code a sample carries.
@@ -76,6 +81,7 @@ impl EventKind {
             Self::LimitCycle => "limit_cycle",
             Self::Spin => "spin",
             Self::Stranger => "stranger",
+            Self::FallbackJudged => "fallback_judged",
         }
     }
 }

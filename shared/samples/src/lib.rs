@@ -382,6 +382,10 @@ pub struct SupervisorEvent {
     /// the switch (old controller) and after its transient (new one).
     pub loop_step_before: f64,
     pub loop_step_after: f64,
+    /// Fallback judged: the tracking error's rms (rad) before the fault
+    /// and over the watched window after the restart.
+    pub tracking_rms_before_rad: f64,
+    pub tracking_rms_after_rad: f64,
     /// Fault: periods from the first missed deadline (the command for the
     /// reading after the last one answered, due one period later) to the
     /// valve's neutral; the valve holds its last command meanwhile
@@ -694,7 +698,7 @@ mod tests {
         assert_eq!(size_of::<SupervisorStatus>(), 16 + MAX_PROCESSES * 52 + 8);
         assert_eq!(size_of::<RecorderStatus>(), 10 * 8);
         assert_eq!(size_of::<Handover>(), 5 * 8);
-        assert_eq!(size_of::<SupervisorEvent>(), 10 * 8 + 8 + 48);
+        assert_eq!(size_of::<SupervisorEvent>(), 12 * 8 + 8 + 48);
         assert_eq!(size_of::<SupervisorReply>(), 16 + 8 + 320);
         assert_eq!(size_of::<ValveDevice>(), 4 * 8 + 4 * 4 + 16 + 128);
     }

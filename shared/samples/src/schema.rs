@@ -225,7 +225,7 @@ recordable!(
     SupervisorEvent,
     "SupervisorEvent",
     stage_time_ns,
-    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nuint64 valve_safe_after_periods\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nstring process\nstring from\nstring to\n",
+    "uint64 seq\nuint64 stage_time_ns\nuint64 sensor_seq\nuint64 missed_cycles\nfloat64 command_step\nfloat64 loop_step_before\nfloat64 loop_step_after\nfloat64 tracking_rms_before_rad\nfloat64 tracking_rms_after_rad\nuint64 valve_safe_after_periods\nuint64 detected_after_ns\nuint64 restarted_after_ns\nuint32 kind\nuint32 pid\nstring process\nstring from\nstring to\n",
     &[("process", 16), ("from", 16), ("to", 16)]
 );
 recordable!(

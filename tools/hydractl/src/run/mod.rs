@@ -1,7 +1,6 @@
 //! `hydractl run`: starts the supervisor (which starts the loop), watches
 //! the loop's samples, shows a live status, and writes the run's summary.
 
-use hydractl_samples::code::EventKind;
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -13,12 +12,12 @@ use hydractl_bus::{quiet_ipc_logging, run_loop, Bus, Flow, LoopExit, Reader, Run
 use hydractl_config::Config;
 use hydractl_samples::service::STAGES;
 use hydractl_samples::{
-    name_str, service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent, SupervisorStatus,
-    ValveSample,
+    service, FrictionSample, PlantReading, PositionSample, SensorSample, SupervisorEvent, SupervisorStatus, ValveSample,
 };
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
+mod events;
 mod misses;
 mod monitor;
 mod recording;
@@ -26,6 +25,7 @@ mod summary;
 mod valve_faults;
 mod virtual_machine;
 
+use events::EventsSeen;
 use monitor::{merge_status, LatencyHistogram, LiveLine, Tracking};
 pub use recording::RecordingIncomplete;
 use recording::{check_writable, recording_report, RecorderView};
@@ -376,13 +376,8 @@ fn watch(
     }];
     let mut last_print = Instant::now();
     let mut cycles_at_last_print = 0u64;
-    let (mut swaps, mut swap_failures) = (Vec::new(), Vec::new());
-    let mut faults_seen: Vec<FaultSummary> = Vec::new();
-    let mut strangers = Vec::new();
-    // Faults whose second after is still being watched: (index, errors seen then).
-    let mut after_fault: Vec<(usize, u64)> = Vec::new();
+    let mut seen = EventsSeen::default();
     let per_second = config.timing.control_rate_hz.round() as u64;
-    let mut plant_switches = Vec::new();
     let mut on_simulation = true;
     // Each plant counts its own late commands.
     let mut late_by_source = [0u64; 2];
@@ -476,13 +471,7 @@ fn watch(
                 if e.is_finite() {
                     tracking.push(e);
                 }
-                if after_fault
-                    .first()
-                    .is_some_and(|&(_, at)| tracking.count() >= at + per_second)
-                {
-                    let (i, _) = after_fault.remove(0);
-                    faults_seen[i].tracking_error_max_after_rad = Some(tracking.last_second().max_abs);
-                }
+                seen.on_tracking(&tracking, per_second);
             }
             if let Some(p) = plant.latest()? {
                 late_by_source[usize::from(p.source == hydractl_samples::source::MACHINE)] = p.late_commands;
@@ -500,117 +489,7 @@ fn watch(
                 on_simulation = s.plant_is_simulation != 0;
             }
             while let Some(e) = events.next()? {
-                let swap = SwapSummary {
-                    stage: name_str(&e.process).to_owned(),
-                    from: name_str(&e.from).to_owned(),
-                    to: name_str(&e.to).to_owned(),
-                    at_seq: e.sensor_seq,
-                    missed_cycles: e.missed_cycles,
-                    command_step: e.command_step,
-                    loop_step_before: e.loop_step_before,
-                    loop_step_after: e.loop_step_after,
-                };
-                let kind = EventKind::from_code(e.kind);
-                match kind {
-                    Some(EventKind::Fallback | EventKind::PlantSwitch) => {
-                        let lost = kind == Some(EventKind::Fallback);
-                        if lost {
-                            above_live_line(live);
-                            tracing::warn!(
-                                event = "fallback",
-                                seq = e.sensor_seq,
-                                "the machine is lost: the loop now runs on the SIMULATED plant from reading {}",
-                                e.sensor_seq
-                            );
-                        }
-                        plant_switches.push(PlantSwitchSummary {
-                            from: swap.from,
-                            to: swap.to,
-                            cause: if lost { "machine lost" } else { "asked" },
-                            at_seq: e.sensor_seq,
-                            detected_after_ms: e.detected_after_ns as f64 * 1e-6,
-                        });
-                    }
-                    Some(EventKind::Stranger) => {
-                        let stranger = StrangerSummary {
-                            pid: e.pid,
-                            service: name_str(&e.process).to_owned(),
-                            at_seq: e.sensor_seq,
-                        };
-                        above_live_line(live);
-                        tracing::warn!(
-                            event = "stranger",
-                            seq = stranger.at_seq,
-                            "a stranger, process {}, publishes on the run's {} (at reading {})",
-                            stranger.pid,
-                            stranger.service,
-                            stranger.at_seq
-                        );
-                        strangers.push(stranger);
-                    }
-                    Some(EventKind::Swap) => {
-                        above_live_line(live);
-                        tracing::info!(
-                            event = "swap",
-                            stage = swap.stage.as_str(),
-                            seq = swap.at_seq,
-                            "{} now runs {} (was {}) from reading {}: {} missed cycles, command step {:.2} % of its range",
-                            swap.stage,
-                            swap.to,
-                            swap.from,
-                            swap.at_seq,
-                            swap.missed_cycles,
-                            swap.command_step * 100.0
-                        );
-                        swaps.push(swap);
-                    }
-                    Some(EventKind::SwapFailed) => {
-                        above_live_line(live);
-                        tracing::warn!(
-                            event = "swap_failed",
-                            stage = swap.stage.as_str(),
-                            "{} did not change to {}: {} stays in charge",
-                            swap.stage,
-                            swap.to,
-                            swap.from
-                        );
-                        swap_failures.push(swap);
-                    }
-                    Some(
-                        fault_kind @ (EventKind::Crash
-                        | EventKind::Hang
-                        | EventKind::Misbehaving
-                        | EventKind::LimitCycle
-                        | EventKind::Spin),
-                    ) => {
-                        let fault = FaultSummary {
-                            process: name_str(&e.process).to_owned(),
-                            kind: fault_kind.name(),
-                            pid: e.pid,
-                            last_seq: e.sensor_seq,
-                            detected_after_ms: e.detected_after_ns as f64 * 1e-6,
-                            valve_safe_after_periods: (e.valve_safe_after_periods != u64::MAX)
-                                .then_some(e.valve_safe_after_periods),
-                            restarted_after_ms: (e.restarted_after_ns != u64::MAX)
-                                .then_some(e.restarted_after_ns as f64 * 1e-6),
-                            restarted_as: Some(name_str(&e.to).to_owned()).filter(|v| !v.is_empty()),
-                            tracking_error_max_after_rad: None,
-                        };
-                        after_fault.push((faults_seen.len(), tracking.count()));
-                        // Said as it happens, above the live line.
-                        above_live_line(live);
-                        tracing::warn!(
-                            event = fault.kind,
-                            child = fault.process.as_str(),
-                            child_pid = fault.pid,
-                            seq = fault.last_seq,
-                            "{}",
-                            fault.says()
-                        );
-                        faults_seen.push(fault);
-                    }
-                    _ => {}
-                }
+                seen.take(&e, live, tracking.count());
             }
             while let Some(d) = device.next()? {
                 valve_faults.on_device(&d, started.elapsed().as_secs_f64());
@@ -723,12 +602,13 @@ fn watch(
         valve_fault_cycles_by_kind: faults_by_kind,
         valve_faults: valve_faults.faults,
         processes,
-        faults: faults_seen,
-        strangers,
-        swaps,
-        swap_failures,
+        faults: seen.faults,
+        strangers: seen.strangers,
+        swaps: seen.swaps,
+        swap_failures: seen.swap_failures,
+        fallbacks_judged: seen.fallbacks_judged,
         plant: if on_simulation { "simulation" } else { "machine" },
-        plant_switches,
+        plant_switches: seen.plant_switches,
         recording: None,
         recorder: recorder_view,
         shadow: config.shadow.model.as_ref().map(|model| ShadowSummary {

@@ -72,6 +72,9 @@ pub(super) struct RunSummary {
     pub(super) swaps: Vec<SwapSummary>,
     /// Swaps asked for that did not happen: the running controller stayed.
     pub(super) swap_failures: Vec<SwapSummary>,
+    /// Each restart into a fallback variant, judged by the tracking after
+    /// it: kept, fallen further back, or left down.
+    pub(super) fallbacks_judged: Vec<FallbackJudgedSummary>,
     /// The plant the loop drove at the end: `machine` or `simulation`.
     pub(super) plant: &'static str,
     /// Each change of plant: the machine lost, or asked for.
@@ -307,4 +310,59 @@ pub(super) struct SwapSummary {
     /// in the second after its transient.
     pub(super) loop_step_before: f64,
     pub(super) loop_step_after: f64,
+}
+
+#[derive(Serialize)]
+pub(super) struct FallbackJudgedSummary {
+    pub(super) stage: String,
+    /// The fallback variant judged.
+    pub(super) variant: String,
+    /// `kept`, `fell_back` (to `then_runs`) or `left_down` (the valve
+    /// neutral until a person acts).
+    pub(super) outcome: &'static str,
+    pub(super) then_runs: Option<String>,
+    /// The tracking error's rms before the fault, and over the judged
+    /// window after the fallback settled.
+    pub(super) tracking_rms_before_rad: f64,
+    pub(super) tracking_rms_after_rad: f64,
+    /// The loop's newest reading when it was judged.
+    pub(super) at_seq: u64,
+}
+
+impl FallbackJudgedSummary {
+    pub(super) fn of(e: &hydractl_samples::SupervisorEvent) -> Self {
+        let (variant, to) = (name_str(&e.from).to_owned(), name_str(&e.to).to_owned());
+        Self {
+            stage: name_str(&e.process).to_owned(),
+            outcome: match to.as_str() {
+                "" => "left_down",
+                same if same == variant => "kept",
+                _ => "fell_back",
+            },
+            then_runs: Some(to).filter(|v| !v.is_empty()),
+            variant,
+            tracking_rms_before_rad: e.tracking_rms_before_rad,
+            tracking_rms_after_rad: e.tracking_rms_after_rad,
+            at_seq: e.sensor_seq,
+        }
+    }
+
+    /// One line for the terminal.
+    pub(super) fn says(&self) -> String {
+        let figures = format!(
+            "tracking {:.4} rad rms against {:.4} before the fault",
+            self.tracking_rms_after_rad, self.tracking_rms_before_rad
+        );
+        match (self.outcome, &self.then_runs) {
+            ("kept", _) => format!("{} keeps its fallback {}: {figures}", self.stage, self.variant),
+            (_, Some(next)) => format!(
+                "{}'s fallback {} fell back to {next}: {figures}",
+                self.stage, self.variant
+            ),
+            _ => format!(
+                "{}'s fallback {} left down, the valve neutral: {figures}",
+                self.stage, self.variant
+            ),
+        }
+    }
 }
