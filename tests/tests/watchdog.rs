@@ -41,17 +41,7 @@ fn controllers_are_swapped_while_the_loop_runs_without_a_missed_cycle() {
     )
     .expect("config");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--duration",
-            "60",
-            "--config",
-            config.to_str().expect("path"),
-            "--summary-json",
-            summary.to_str().expect("path"),
-        ],
-    );
+    let mut run = start_with_summary(&scope, &config, 60, &summary);
     assert!(observer.wait_healthy(500, Duration::from_secs(20)), "the loop runs");
 
     let before = status(&scope);
@@ -250,17 +240,7 @@ fn a_process_whose_rule_says_never_stays_down_with_the_valve_neutral() {
     });
     let summary = dir.join("summary.json");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--duration",
-            "30",
-            "--config",
-            config.to_str().expect("path"),
-            "--summary-json",
-            summary.to_str().expect("path"),
-        ],
-    );
+    let mut run = start_with_summary(&scope, &config, 30, &summary);
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     let pid = observer.pid_of("friction", Duration::from_secs(2)).expect("friction");
     signal(pid, Signal::SIGKILL);
@@ -396,17 +376,7 @@ fn a_controller_whose_commands_keep_being_rejected_is_restarted_into_its_fallbac
     });
     let summary = dir.join("summary.json");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            "30",
-            "--summary-json",
-            summary.to_str().expect("path"),
-        ],
-    );
+    let mut run = start_with_summary(&scope, &config, 30, &summary);
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     assert_eq!(process(&status(&scope), "torque")["variant"], "pid");
     let (flags, longest) = flood_torque_with_nan(&scope, &observer);
@@ -453,17 +423,7 @@ fn a_fallback_that_tracks_far_worse_falls_back_to_the_pid_and_the_summary_gives_
     });
     let summary = dir.join("summary.json");
     let observer = Observer::open(&scope);
-    let mut run = start_run(
-        &scope,
-        &[
-            "--config",
-            config.to_str().expect("path"),
-            "--duration",
-            "40",
-            "--summary-json",
-            summary.to_str().expect("path"),
-        ],
-    );
+    let mut run = start_with_summary(&scope, &config, 40, &summary);
     assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
     flood_torque_with_nan(&scope, &observer);
     // Restarted as H∞, judged 1 s after its first output over 2 s, then
@@ -614,4 +574,24 @@ fn flood_torque_with_nan(
         std::thread::sleep(Duration::from_micros(200));
     }
     (flags, longest)
+}
+
+/// `hydractl run --config CONFIG --duration SECONDS --summary-json SUMMARY`.
+fn start_with_summary(
+    scope: &hydractl_bus::RunScope,
+    config: &std::path::Path,
+    seconds: u32,
+    summary: &std::path::Path,
+) -> RunGuard {
+    start_run(
+        scope,
+        &[
+            "--config",
+            config.to_str().expect("path"),
+            "--duration",
+            &seconds.to_string(),
+            "--summary-json",
+            summary.to_str().expect("path"),
+        ],
+    )
 }

@@ -553,9 +553,7 @@ impl Swaps {
         at_seq: u64,
         (rms_before, rms_after): (f64, f64),
     ) -> Result<()> {
-        self.events.publish(SupervisorEvent {
-            seq: self.event_seq,
-            stage_time_ns: clock::now_ns(),
+        self.publish(SupervisorEvent {
             sensor_seq: at_seq,
             tracking_rms_before_rad: rms_before,
             tracking_rms_after_rad: rms_after,
@@ -566,6 +564,15 @@ impl Swaps {
             from: fixed_name(from),
             to: fixed_name(to),
             ..SupervisorEvent::default()
+        })
+    }
+
+    /// An event, numbered and stamped now.
+    fn publish(&mut self, event: SupervisorEvent) -> Result<()> {
+        self.events.publish(SupervisorEvent {
+            seq: self.event_seq,
+            stage_time_ns: clock::now_ns(),
+            ..event
         })?;
         self.event_seq += 1;
         Ok(())
@@ -591,9 +598,7 @@ impl Swaps {
             .valve_safe_after
             .or_else(|| self.valve_safe_after(&fault))
             .unwrap_or(u64::MAX);
-        self.events.publish(SupervisorEvent {
-            seq: self.event_seq,
-            stage_time_ns: clock::now_ns(),
+        self.publish(SupervisorEvent {
             sensor_seq: fault.last_seq.unwrap_or(0),
             valve_safe_after_periods: valve_safe,
             detected_after_ns: fault.silent_for.as_nanos() as u64,
@@ -606,9 +611,7 @@ impl Swaps {
             from: fixed_name(fault.variants.map_or("", |v| v.0)),
             to: fixed_name(fault.variants.map_or("", |v| v.1)),
             ..SupervisorEvent::default()
-        })?;
-        self.event_seq += 1;
-        Ok(())
+        })
     }
 
     /// The plant seat changed: fallback or asked for.
@@ -621,9 +624,7 @@ impl Swaps {
         (from, to): (&str, &str),
         pid: u32,
     ) -> Result<()> {
-        self.events.publish(SupervisorEvent {
-            seq: self.event_seq,
-            stage_time_ns: clock::now_ns(),
+        self.publish(SupervisorEvent {
             sensor_seq: at_seq,
             valve_safe_after_periods: u64::MAX,
             detected_after_ns: detected_after.as_nanos() as u64,
@@ -634,9 +635,7 @@ impl Swaps {
             from: fixed_name(from),
             to: fixed_name(to),
             ..SupervisorEvent::default()
-        })?;
-        self.event_seq += 1;
-        Ok(())
+        })
     }
 
     fn publish_event(
@@ -646,9 +645,7 @@ impl Swaps {
         at_seq: u64,
         quality: SwitchQuality,
     ) -> Result<()> {
-        self.events.publish(SupervisorEvent {
-            seq: self.event_seq,
-            stage_time_ns: clock::now_ns(),
+        self.publish(SupervisorEvent {
             sensor_seq: at_seq,
             missed_cycles: quality.missed_cycles,
             command_step: quality.command_step,
@@ -660,9 +657,7 @@ impl Swaps {
             from: fixed_name(swap.from),
             to: fixed_name(swap.to),
             ..SupervisorEvent::default()
-        })?;
-        self.event_seq += 1;
-        Ok(())
+        })
     }
 }
 
