@@ -50,6 +50,7 @@ use hydractl_stages::SensorEstimate;
 mod can_sensors;
 pub mod can_valve;
 pub mod handover;
+mod last_measured;
 pub mod live_plant;
 pub mod logging;
 #[cfg(not(test))]

@@ -30,6 +30,7 @@ use hydractl_sim::build_plant;
 
 use crate::can_sensors::CanSensors;
 use crate::handover::{HandoverInbox, PlantSeat, SeatChange};
+use crate::last_measured::LastMeasured;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PlantKind {
@@ -90,15 +91,11 @@ pub fn run(kind: PlantKind) -> Result<()> {
         seq = resume.seq + 1;
     }
     if let (Some(resume), Body::Simulated { plant, sensors, .. }) = (started.args.resume, &mut body) {
+        let measured = LastMeasured::of_resume(&resume);
         let mut state = plant.state();
-        state.angle = resume.angle;
-        state.load_angle = resume.angle;
-        state.p_a = resume.p_a;
-        state.p_b = resume.p_b;
-        state.velocity = resume.velocity;
-        state.load_velocity = resume.velocity;
+        measured.put_into(&mut state);
         plant.reset_to(state);
-        sensors.home(resume.angle);
+        sensors.home(state.angle);
     }
     let period = Duration::from_secs_f64(config.timing.control_period());
     let period_ns = period.as_nanos() as u64;
@@ -128,8 +125,8 @@ pub fn run(kind: PlantKind) -> Result<()> {
     let amplifier_timeout = config.control.valve_guard.max_age_periods + 1;
     let mut without_command = 0u64;
     let mut loop_running = false;
-    let mut last_measured: Option<PlantReading> = None;
-    let mut last_velocity = 0.0;
+    let mut last_measured = LastMeasured::default();
+    let mut stream_seq = None;
     // A fresh simulated plant in charge waits for the chain, so that its
     // first reading is answered, as in the offline simulation, where the
     // controllers are there from t = 0. A restarted plant finds the chain
@@ -166,12 +163,12 @@ pub fn run(kind: PlantKind) -> Result<()> {
             }
         }
         if let Some(r) = stream.newest_by(|r| r.sensor_seq)? {
-            last_measured = Some(r);
+            last_measured.reading(&r);
+            stream_seq = Some(r.sensor_seq);
         }
         if let Some(s) = estimates.latest()? {
-            last_velocity = s.velocity;
+            last_measured.velocity(s.velocity);
         }
-        let stream_seq = last_measured.map(|r| r.sensor_seq);
         let mut change = None;
         while let Some(h) = inbox.next_handover()? {
             change = change.or(seat.update(Some(h), stream_seq, seq, clock::now_ns(), period_ns));
@@ -182,22 +179,17 @@ pub fn run(kind: PlantKind) -> Result<()> {
         match change {
             Some(SeatChange::Take { at_seq }) => {
                 tracing::info!("drives the loop from reading {at_seq}");
-                if let (Body::Simulated { plant, sensors, .. }, PlantKind::Simulation, Some(r)) =
-                    (&mut body, kind, last_measured)
-                {
+                if let (Body::Simulated { plant, sensors, .. }, PlantKind::Simulation) = (&mut body, kind) {
                     // From the last measured state, the valve neutral.
                     let mut state = plant.state();
                     state.spool = 0.0;
                     state.spool_rate = 0.0;
-                    state.angle = r.angle;
-                    state.load_angle = r.angle;
-                    state.velocity = last_velocity;
-                    state.load_velocity = last_velocity;
-                    state.p_a = r.p_a;
-                    state.p_b = r.p_b;
                     state.stuck = false;
+                    last_measured.put_into(&mut state);
                     plant.reset_to(state);
-                    sensors.home(r.angle);
+                    if let Some(angle) = last_measured.angle() {
+                        sensors.home(angle);
+                    }
                 }
                 seq = at_seq;
                 command = 0.0;

@@ -1,10 +1,11 @@
 //! The two halves of the product chained: a recording of the stack on the
 //! machine's CAN devices (`config/can.toml`, with a valve process killed
-//! half-way) is fitted and diagnosed by the model tools, which name the
-//! effect the machine stand-in has and the model lacks (`machine.toml`'s
-//! Coulomb friction). The readings a CAN master could not complete in
-//! time (NaN) and those after the loop's last command are left out, and
-//! said so; they never stop the tools.
+//! half-way, and the machine lost at the end, the simulated plant taking
+//! over) is fitted and diagnosed by the model tools, which name the effect
+//! the machine stand-in has and the model lacks (`machine.toml`'s Coulomb
+//! friction). The readings a CAN master could not complete in time (NaN),
+//! those after the loop's last command and the simulated plant's are left
+//! out, and said so; they never stop the tools.
 
 use std::time::Duration;
 
@@ -29,7 +30,9 @@ fn a_can_runs_recording_with_a_valve_kill_is_fitted_and_its_missing_effect_named
     let _turn = serial();
     let scope = unique_scope("can_model");
     let dir = scratch_dir("can_model");
-    let config = can_config(&dir, "can.toml", "");
+    // The encoder falls silent 2 s after the valve kill: the machine is
+    // lost and the simulated plant drives the loop to the end.
+    let config = can_config(&dir, "can.toml", "[machine.silent_node]\nnode = 0x20\nafter_s = 20.0\n");
     let recording = dir.join("run.mcap");
     let observer = Observer::open(&scope);
     let run = start_run(
@@ -72,6 +75,11 @@ fn a_can_runs_recording_with_a_valve_kill_is_fitted_and_its_missing_effect_named
             fitted.to_str().expect("path"),
             "--json",
         ],
+    );
+    let said = String::from_utf8_lossy(&diagnose.stderr);
+    assert!(
+        said.contains("came from the simulated plant standing in for the machine"),
+        "{said}"
     );
     let verdict: serde_json::Value = serde_json::from_slice(&diagnose.stdout).expect("diagnose json");
     let words = verdict["verdict"].as_str().expect("a verdict");

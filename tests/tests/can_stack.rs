@@ -98,6 +98,12 @@ fn a_silent_encoder_is_a_lost_machine_and_the_valve_is_left_neutral() {
     assert_eq!(switch["from"], "machine");
     assert_eq!(switch["to"], "simulation");
     assert_eq!(switch["cause"], "machine lost");
+    // The simulated plant takes over from the last valid angle, not the
+    // lost encoder's NaN: only the readings between the encoder's silence
+    // and the switch (its heartbeat's timeout, 400 ms) have no angle. From
+    // a NaN start, the rest of the run's 4000 would have none either.
+    let without_angle = summary["readings_without_angle"].as_u64().expect("count");
+    assert!((1..1000).contains(&without_angle), "{summary}");
     // The encoder's last frame, then the machine's valve: nothing but
     // neutral once the heartbeat was due (the loop on the simulated plant
     // must not move the real valve).

@@ -3,7 +3,7 @@ use std::path::Path;
 
 use hydractl_plant::PA_PER_BAR;
 use hydractl_samples::{
-    fault, service, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
+    fault, service, source, FrictionSample, PlantReading, PositionSample, SensorSample, TorqueSample, ValveSample,
 };
 use serde::Serialize;
 
@@ -94,6 +94,11 @@ pub struct Export {
     /// while the plant still read, or the valve held neutral to the end by
     /// a latched fault): left out, they answer nothing.
     pub after_loop: usize,
+    /// In a recording of the machine, readings of the simulated plant that
+    /// stood in for it (the machine lost, or a switch asked for): not the
+    /// machine's measurements, left out; and the first one's time, s.
+    pub simulated: usize,
+    pub simulated_from_s: Option<f64>,
     pub read: ReadOutcome,
 }
 
@@ -216,7 +221,15 @@ pub fn export_rows_in(path: &Path, window: Option<Window>) -> Result<Export, Rec
         valve_requested: f64::NAN,
     };
     let mut join = CommandJoin::new();
+    // A model of the machine is fitted to the machine's readings alone.
+    let of_machine = plant.values().any(|r| r.source == source::MACHINE);
+    let (mut simulated, mut simulated_from_s) = (0, None);
     for (seq, r) in plant.range(start..=end) {
+        if of_machine && r.source != source::MACHINE {
+            simulated += 1;
+            simulated_from_s.get_or_insert((seq - start) as f64 * period_s);
+            continue;
+        }
         join.reading(*r);
         let Some(v) = valve.get(seq) else { continue };
         join.valve(*v, |r, v, own| {
@@ -253,6 +266,8 @@ pub fn export_rows_in(path: &Path, window: Option<Window>) -> Result<Export, Rec
         rows,
         held,
         after_loop,
+        simulated,
+        simulated_from_s,
         read,
     })
 }

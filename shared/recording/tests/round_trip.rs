@@ -5,7 +5,7 @@ use hydractl_recording::{
     decode, export_rows, read_messages, read_messages_in, summarize, RecordOptions, RecordingError, RecordingWriter,
     Window,
 };
-use hydractl_samples::{service, PlantReading, PositionSample, Recordable, SensorSample, ValveSample};
+use hydractl_samples::{service, source, PlantReading, PositionSample, Recordable, SensorSample, ValveSample};
 
 fn sensor(seq: u64) -> SensorSample {
     SensorSample {
@@ -436,4 +436,40 @@ fn a_message_that_cannot_be_read_is_named_by_channel_time_and_sequence() {
     ] {
         assert!(err.contains(part), "{part}: {err}");
     }
+}
+
+#[test]
+fn in_a_recording_of_the_machine_the_simulated_plants_readings_are_left_out() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("run.mcap");
+    let mut w = RecordingWriter::create(&path, RecordOptions::default()).expect("create");
+    let v = w.add_channel(service::VALVE, &ValveSample::KIND).expect("channel");
+    let p = w
+        .add_channel(service::POSITION, &PositionSample::KIND)
+        .expect("channel");
+    let r = w
+        .add_channel(service::PLANT_READING, &PlantReading::KIND)
+        .expect("channel");
+    // The machine lost at reading 70, the simulated plant in charge until
+    // the machine is asked back at 85.
+    for seq in 0..100 {
+        let on_machine = !(70..85).contains(&seq);
+        let source = if on_machine {
+            source::MACHINE
+        } else {
+            source::SIMULATION
+        };
+        w.write_sample(r, &PlantReading { source, ..reading(seq) })
+            .expect("write");
+        w.write_sample(p, &position(seq)).expect("write");
+        w.write_sample(v, &valve(seq)).expect("write");
+    }
+    w.finish().expect("finish");
+    let export = export_rows(&path).expect("export");
+    assert_eq!((export.simulated, export.simulated_from_s), (15, Some(0.070)));
+    assert_eq!(export.rows.len(), 85);
+    // The machine's readings keep their own times: the left-out stretch is
+    // a gap, never closed up.
+    assert!((export.rows[69].t - 0.069).abs() < 1e-12);
+    assert!((export.rows[70].t - 0.085).abs() < 1e-12);
 }

@@ -302,6 +302,13 @@ fn exported(path: &Path, window: Option<Window>) -> Result<hydractl_recording::E
             export.after_loop
         );
     }
+    if let Some(from_s) = export.simulated_from_s {
+        tracing::warn!(
+            "{}: {} reading(s) from {from_s:.3} s on came from the simulated plant standing in for the machine and are left out: they are not the machine's",
+            path.display(),
+            export.simulated
+        );
+    }
     if export.held > 0 {
         tracing::warn!(
             "{}: {} of {} readings have no recorded command or reference (the stage skipped them); the previous one is held",

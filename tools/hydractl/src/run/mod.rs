@@ -263,6 +263,12 @@ pub fn run(mut args: RunArgs) -> Result<()> {
         summary.max_abs_tracking_error_rad,
         summary.processes.iter().map(|p| p.restarts).sum::<u32>()
     ))?;
+    if summary.readings_without_angle > 0 {
+        crate::emit(&format!(
+            "{} readings had no valid angle (a sensor's value missing) and are not in the tracking figures\n",
+            summary.readings_without_angle
+        ))?;
+    }
     match &summary.recording {
         Some(r) if !r.complete => Err(RecordingIncomplete(r.what_is_missing()).into()),
         _ => Ok(()),
@@ -377,6 +383,8 @@ fn watch(
     let mut last_print = Instant::now();
     let mut cycles_at_last_print = 0u64;
     let mut seen = EventsSeen::default();
+    // Readings the tracking could not judge: their angle was invalid.
+    let mut readings_without_angle = 0u64;
     let per_second = config.timing.control_rate_hz.round() as u64;
     let mut on_simulation = true;
     // Each plant counts its own late commands.
@@ -470,6 +478,8 @@ fn watch(
                 // the valve was neutral for it, and the next one counts.
                 if e.is_finite() {
                     tracking.push(e);
+                } else {
+                    readings_without_angle += 1;
                 }
                 seen.on_tracking(&tracking, per_second);
             }
@@ -598,6 +608,7 @@ fn watch(
             .collect(),
         max_abs_tracking_error_rad: tracking.since_start().max_abs,
         rms_tracking_error_rad: tracking.since_start().rms,
+        readings_without_angle,
         valve_fault_cycles: faults,
         valve_fault_cycles_by_kind: faults_by_kind,
         valve_faults: valve_faults.faults,

@@ -55,6 +55,9 @@ pub(super) struct RunSummary {
     pub(super) latency_by_stage_us: Vec<StageLatency>,
     pub(super) max_abs_tracking_error_rad: f64,
     pub(super) rms_tracking_error_rad: f64,
+    /// Readings whose angle was invalid (NaN: a sensor's value missing),
+    /// left out of the tracking figures.
+    pub(super) readings_without_angle: u64,
     /// Valve samples published in neutral with a fault flag.
     pub(super) valve_fault_cycles: u64,
     /// The same cycles by flag (`stale`, `not_finite`, `out_of_range`,
