@@ -595,3 +595,29 @@ fn start_with_summary(
         ],
     )
 }
+
+#[test]
+fn a_stopped_supervisor_is_said_by_the_run_and_its_silence_measured() {
+    let _turn = serial();
+    let scope = unique_scope("silentsup");
+    let dir = scratch_dir("silentsup");
+    let summary = dir.join("summary.json");
+    let observer = Observer::open(&scope);
+    let mut run = start_run(
+        &scope,
+        &["--duration", "30", "--summary-json", summary.to_str().expect("path")],
+    );
+    assert!(observer.wait_healthy(300, Duration::from_secs(20)), "the loop runs");
+    let supervisor = process(&status(&scope), "supervisor")["pid"].as_u64().expect("pid") as u32;
+    // The supervisor's rounds stop for 1.5 s; the loop runs on.
+    signal(supervisor, Signal::SIGSTOP);
+    std::thread::sleep(Duration::from_millis(1500));
+    signal(supervisor, Signal::SIGCONT);
+    assert!(observer.wait_healthy(300, Duration::from_secs(5)), "the loop ran on");
+    signal(run.id(), Signal::SIGTERM);
+    assert!(wait_exit(&mut run.0, Duration::from_secs(30)).success());
+    let summary = read_json(&summary);
+    let silence = summary["supervisor_longest_silence_ms"].as_f64().expect("silence");
+    assert!((1400.0..3000.0).contains(&silence), "{silence} ms");
+    drop(observer);
+}

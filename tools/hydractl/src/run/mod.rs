@@ -26,7 +26,7 @@ mod valve_faults;
 mod virtual_machine;
 
 use events::EventsSeen;
-use monitor::{merge_status, LatencyHistogram, LiveLine, Tracking};
+use monitor::{merge_status, LatencyHistogram, LiveLine, SupervisorSilence, Tracking};
 pub use recording::RecordingIncomplete;
 use recording::{check_writable, recording_report, RecorderView};
 use summary::*;
@@ -383,6 +383,7 @@ fn watch(
     let mut last_print = Instant::now();
     let mut cycles_at_last_print = 0u64;
     let mut seen = EventsSeen::default();
+    let mut supervisor_silence = SupervisorSilence::default();
     // Readings the tracking could not judge: their angle was invalid.
     let mut readings_without_angle = 0u64;
     let per_second = config.timing.control_rate_hz.round() as u64;
@@ -497,6 +498,14 @@ fn watch(
             if let Some(s) = status.latest()? {
                 merge_status(&mut processes, &s);
                 on_simulation = s.plant_is_simulation != 0;
+                supervisor_silence.status(s.stage_time_ns, now_ns);
+            }
+            if let Some(silent_ns) = supervisor_silence.check(now_ns) {
+                above_live_line(live);
+                tracing::warn!(
+                    "the supervisor has published no status for {} ms: its rounds (restarts, the fault account, swaps) have stopped, and the loop runs on unwatched",
+                    silent_ns / 1_000_000
+                );
             }
             while let Some(e) = events.next()? {
                 seen.take(&e, live, tracking.count());
@@ -609,6 +618,7 @@ fn watch(
         max_abs_tracking_error_rad: tracking.since_start().max_abs,
         rms_tracking_error_rad: tracking.since_start().rms,
         readings_without_angle,
+        supervisor_longest_silence_ms: supervisor_silence.longest_ns as f64 * 1e-6,
         valve_fault_cycles: faults,
         valve_fault_cycles_by_kind: faults_by_kind,
         valve_faults: valve_faults.faults,

@@ -229,6 +229,49 @@ pub(super) fn merge_status(processes: &mut Vec<ProcessSummary>, status: &Supervi
     }
 }
 
+/// The supervisor's own liveness, by its status (published every 100 ms):
+/// while it is silent, its rounds (restarts, the fault account, swaps)
+/// have stopped and the loop runs on unwatched. As a service, systemd's
+/// watchdog acts on that; under `hydractl run`, the run says so.
+#[derive(Debug, Default)]
+pub(super) struct SupervisorSilence {
+    /// The newest status's own timestamp; none before the first.
+    last_status_ns: Option<u64>,
+    /// The silence said on the terminal, not yet over.
+    said: bool,
+    pub(super) longest_ns: u64,
+}
+
+/// Silent this long, the supervisor is said to have stopped.
+const SUPERVISOR_SILENT_NS: u64 = 1_000_000_000;
+
+impl SupervisorSilence {
+    /// A status sample, stamped `stage_time_ns`.
+    pub(super) fn status(&mut self, stage_time_ns: u64, now_ns: u64) {
+        if self.last_status_ns.is_some_and(|last| stage_time_ns > last) && self.said {
+            tracing::info!(
+                "the supervisor reports again, after {} ms",
+                now_ns.saturating_sub(self.last_status_ns.unwrap_or(now_ns)) / 1_000_000
+            );
+            self.said = false;
+        }
+        if let Some(last) = self.last_status_ns {
+            self.longest_ns = self.longest_ns.max(stage_time_ns.saturating_sub(last));
+        }
+        self.last_status_ns = Some(
+            self.last_status_ns
+                .map_or(stage_time_ns, |last| last.max(stage_time_ns)),
+        );
+    }
+
+    /// Once a round: whether the silence is new and long enough to say.
+    pub(super) fn check(&mut self, now_ns: u64) -> Option<u64> {
+        let silent_ns = now_ns.saturating_sub(self.last_status_ns?);
+        self.longest_ns = self.longest_ns.max(silent_ns);
+        (silent_ns >= SUPERVISOR_SILENT_NS && !std::mem::replace(&mut self.said, true)).then_some(silent_ns)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -310,5 +353,19 @@ mod tests {
             !plain.render().contains("SIMULATION"),
             "no machine expected: nothing to warn of"
         );
+    }
+
+    #[test]
+    fn a_silence_is_said_once_and_its_longest_kept() {
+        let ms = 1_000_000;
+        let mut silence = SupervisorSilence::default();
+        assert_eq!(silence.check(5_000 * ms), None, "nothing before the first status");
+        silence.status(100 * ms, 100 * ms);
+        assert_eq!(silence.check(900 * ms), None);
+        assert_eq!(silence.check(1_200 * ms), Some(1_100 * ms));
+        assert_eq!(silence.check(1_300 * ms), None, "said once");
+        silence.status(1_400 * ms, 1_400 * ms);
+        assert_eq!(silence.check(1_450 * ms), None);
+        assert_eq!(silence.longest_ns, 1_300 * ms, "from status to status");
     }
 }

@@ -66,6 +66,9 @@ pub(super) struct RunSummary {
     /// The machine's valve's latched faults (CAN), each with its reset.
     pub(super) valve_faults: Vec<valve_faults::ValveFaultSummary>,
     pub(super) processes: Vec<ProcessSummary>,
+    /// The longest time between two statuses of the supervisor (published
+    /// every 100 ms): while it was silent, nothing watched the loop.
+    pub(super) supervisor_longest_silence_ms: f64,
     /// Processes that crashed or hung, and how the stack recovered.
     pub(super) faults: Vec<FaultSummary>,
     /// Processes that are none of the run's and published on one of its
