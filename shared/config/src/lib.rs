@@ -384,6 +384,19 @@ mod tests {
             .expect_err("unstable around its model")
             .to_string();
         assert!(err.contains("unstable"), "{err}");
+        // The designed controller with its error scaled past its gain
+        // margin (6.6 dB, 2.1×): not the controller that was designed.
+        let scaled = hinf_fallback.replace("\nerror_scale = 1.0", "\nerror_scale = 3.0");
+        let err = Config::parse(&scaled, path)
+            .expect_err("unstable with its scale")
+            .to_string();
+        assert!(err.contains("unstable") && err.contains("error_scale 3"), "{err}");
+        // Scaled within the margin it still holds its model.
+        Config::parse(
+            &hinf_fallback.replace("\nerror_scale = 1.0", "\nerror_scale = 1.5"),
+            path,
+        )
+        .expect("within the gain margin");
     }
 
     #[test]

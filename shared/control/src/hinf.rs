@@ -118,8 +118,9 @@ impl HInfinityParams {
         Ok(transfer_function.to_state_space())
     }
 
-    /// With a design: the loop closed around its plant model is stable.
-    /// The config's validation calls it; a fallback variant needs it.
+    /// With a design: the loop closed around its plant model by the
+    /// controller as it runs (its `error_scale` too) is stable. The config's
+    /// validation calls it; a fallback variant needs it.
     pub fn check_design(&self) -> Result<(), ControlError> {
         let Some(design) = &self.design else {
             return Ok(());
@@ -132,14 +133,16 @@ impl HInfinityParams {
         if plant.num().len() >= plant.den().len() {
             return Err(invalid("plant_num must have fewer coefficients than plant_den".into()));
         }
+        let mut controller = self.state_space()?;
+        controller.b *= self.error_scale;
         let poles = plant
             .to_state_space()
-            .negative_feedback_poles(&self.state_space()?)
+            .negative_feedback_poles(&controller)
             .map_err(|e| invalid(e.to_string()))?;
         match poles.iter().find(|p| p.re >= 0.0) {
             Some(p) => Err(invalid(format!(
-                "the loop of this controller around its own plant model is unstable (a pole at {:.3}{:+.3}i): the controller is not the one designed, or the design is wrong",
-                p.re, p.im
+                "the loop of this controller (error_scale {}) around its own plant model is unstable (a pole at {:.3}{:+.3}i): the controller or its error_scale is not the one designed, or the design is wrong",
+                self.error_scale, p.re, p.im
             ))),
             None => Ok(()),
         }
