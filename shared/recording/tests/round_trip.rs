@@ -54,17 +54,21 @@ fn position(seq: u64) -> PositionSample {
     }
 }
 
+/// The three channels the model tools read: valve, position, plant.
+fn model_channels(w: &mut RecordingWriter) -> [hydractl_recording::ChannelHandle; 3] {
+    [
+        (service::VALVE, &ValveSample::KIND),
+        (service::POSITION, &PositionSample::KIND),
+        (service::PLANT_READING, &PlantReading::KIND),
+    ]
+    .map(|(topic, kind)| w.add_channel(topic, kind).expect("channel"))
+}
+
 /// A recording of `n` periods of the three channels the model tools read.
 fn record(path: &Path, n: u64, options: RecordOptions) -> Vec<std::path::PathBuf> {
     let mut w = RecordingWriter::create(path, options).expect("create");
     let s = w.add_channel(service::SENSOR, &SensorSample::KIND).expect("channel");
-    let v = w.add_channel(service::VALVE, &ValveSample::KIND).expect("channel");
-    let p = w
-        .add_channel(service::POSITION, &PositionSample::KIND)
-        .expect("channel");
-    let r = w
-        .add_channel(service::PLANT_READING, &PlantReading::KIND)
-        .expect("channel");
+    let [v, p, r] = model_channels(&mut w);
     for seq in 0..n {
         w.write_sample(r, &reading(seq)).expect("write");
         w.write_sample(s, &sensor(seq)).expect("write");
@@ -443,13 +447,7 @@ fn in_a_recording_of_the_machine_the_simulated_plants_readings_are_left_out() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("run.mcap");
     let mut w = RecordingWriter::create(&path, RecordOptions::default()).expect("create");
-    let v = w.add_channel(service::VALVE, &ValveSample::KIND).expect("channel");
-    let p = w
-        .add_channel(service::POSITION, &PositionSample::KIND)
-        .expect("channel");
-    let r = w
-        .add_channel(service::PLANT_READING, &PlantReading::KIND)
-        .expect("channel");
+    let [v, p, r] = model_channels(&mut w);
     // The machine lost at reading 70, the simulated plant in charge until
     // the machine is asked back at 85.
     for seq in 0..100 {
