@@ -148,14 +148,10 @@ impl Supervisor {
                 cascade,
                 Duration::from_secs_f64(config.timing.control_period()),
                 SwapJudge {
-                    readings: (config.supervisor.swap_judge_ms as f64 / 1000.0 / config.timing.control_period()).round()
-                        as u64,
+                    readings: config.timing.periods_in_ms(config.supervisor.swap_judge_ms),
                     factor: config.supervisor.swap_rollback_factor,
                     floor_rad: config.supervisor.swap_rollback_min_rms_rad,
-                    fallback_settle_readings: (config.supervisor.fallback_settle_ms as f64
-                        / 1000.0
-                        / config.timing.control_period())
-                    .round() as u64,
+                    fallback_settle_readings: config.timing.periods_in_ms(config.supervisor.fallback_settle_ms),
                 },
             )?,
             seat,

@@ -74,6 +74,11 @@ impl Timing {
         1.0 / self.control_rate_hz
     }
 
+    /// How many control periods `ms` milliseconds span, rounded.
+    pub fn periods_in_ms(&self, ms: u64) -> u64 {
+        (ms as f64 / 1000.0 / self.control_period()).round() as u64
+    }
+
     pub fn integration_step(&self) -> f64 {
         1.0 / self.integration_rate_hz
     }
