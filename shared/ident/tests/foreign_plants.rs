@@ -139,3 +139,31 @@ fn a_record_with_readings_left_out_is_diagnosed_from_what_is_left() {
     common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
     common::named_first_within(&diagnosis, hidden, 0.25).unwrap_or_else(|e| panic!("{}: {e}", data.description));
 }
+
+/// Bench plant 1003003, chosen because it was a miss: a slow valve (ω_v
+/// 0.62 × the prior) whose P loop limit-cycles near 2 Hz, a chamber at tank
+/// or supply a third of the time. Between the command's steps the
+/// baseline's slower valve takes up the 20 ms delay; at the steps it
+/// cannot.
+#[test]
+fn a_delay_beside_a_limit_cycling_slow_valve_is_named_at_the_steps_bench_plant_1003003() {
+    named_first(1_003_003, Hidden::TimeDelay { seconds: 0.02 }).unwrap_or_else(|e| panic!("{e}"));
+}
+
+/// The same plant without the delay limit-cycles all the same; its
+/// transducers' lag is no delay.
+#[test]
+fn the_same_slow_valve_without_a_delay_names_nothing_bench_plant_1003003() {
+    nothing_significant(1_003_003);
+}
+
+/// Bench plant 1003007, the other slow valve the segment tests missed.
+#[test]
+fn a_delay_beside_a_limit_cycling_slow_valve_is_named_at_the_steps_bench_plant_1003007() {
+    named_first(1_003_007, Hidden::TimeDelay { seconds: 0.02 }).unwrap_or_else(|e| panic!("{e}"));
+}
+
+#[test]
+fn the_same_slow_valve_without_a_delay_names_nothing_bench_plant_1003007() {
+    nothing_significant(1_003_007);
+}

@@ -52,6 +52,21 @@ pub(super) fn predict_hydraulic(
     range: Range<usize>,
     out: &mut Prediction,
 ) {
+    let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
+    predict_hydraulic_from(plant, effects, signals, range, &segment_starts, out);
+}
+
+/// [`predict_hydraulic`] with the pressures taken from the measurement at
+/// `segment_starts` (ascending, each stretch's first within `range` among
+/// them): segments placed where a test wants them.
+pub(crate) fn predict_hydraulic_from(
+    plant: &PlantParams,
+    effects: &Effects,
+    signals: &Signals,
+    range: Range<usize>,
+    segment_starts: &[usize],
+    out: &mut Prediction,
+) {
     let h = signals.dt;
     let exact = HydraulicSteps::new(plant, effects, h);
     let travel_limit = effects.saturation.map(|s| s.limit);
@@ -59,7 +74,6 @@ pub(super) fn predict_hydraulic(
     let free = |spool: f64| travel_limit.is_none_or(|limit| spool.abs() < limit);
     let mut spool = [0.0_f64; 2];
     let mut pressures = [signals.p_a[0], signals.p_b[0]];
-    let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
     let mut next_start = 0;
     for k in 0..range.end {
         if next_start < segment_starts.len() && k == segment_starts[next_start] {

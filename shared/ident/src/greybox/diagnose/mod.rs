@@ -27,6 +27,7 @@ use super::{Model, ModelError, Part, Prediction, Signals};
 
 mod plausibility;
 mod stats;
+mod steps;
 #[cfg(test)]
 mod tests;
 mod ties;
@@ -34,6 +35,7 @@ mod verdict;
 
 use plausibility::*;
 use stats::*;
+use steps::*;
 use ties::*;
 use verdict::*;
 
@@ -135,8 +137,13 @@ impl Candidate {
 
     /// Its test's figures for a verdict: "t = 2.7 against 3.6 over 36 segments".
     fn test_figures(&self) -> String {
+        let over = if self.test == SegmentTest::StepWindows.name() {
+            "steps' windows"
+        } else {
+            "segments"
+        };
         format!(
-            "{} = {:.1} against {:.1} over {} segments",
+            "{} = {:.1} against {:.1} over {} {over}",
             self.statistic_symbol(),
             self.statistic,
             self.threshold,
@@ -150,6 +157,8 @@ impl Candidate {
             "signed-rank z"
         } else if self.test == SegmentTest::ErrorShare.name() {
             "error-share t"
+        } else if self.test == SegmentTest::StepWindows.name() {
+            "error-share t at the command's steps"
         } else {
             "t"
         }
@@ -292,6 +301,35 @@ pub fn diagnose_with(
         // the effect (a gravity load of 0.007 N·m took 65 % of the angle's
         // error beside a Coulomb friction whose refit it improved). The
         // effect itself must remove the share that counts from its refit.
+        // A delay is also judged at the command's steps, where a lag cannot
+        // take it up; the tests share its α.
+        let effect_alpha = FAMILY_ALPHA / tried as f64;
+        let steps = StepWindows::find(*kind, part, signals, validation.clone()).filter(|_| !found_nothing);
+        let segment_alpha = match steps {
+            Some(_) => effect_alpha * (1.0 - STEP_ALPHA_SHARE),
+            None => effect_alpha,
+        };
+        let segment_test = paired_test_at(
+            signals,
+            part,
+            &before_prediction,
+            &after_prediction,
+            validation.clone(),
+            segment_alpha,
+        );
+        let at_steps = match &steps {
+            Some(steps) if !segment_test.passed() && params.get("delay_s").is_some_and(|d| *d >= STEP_DELAY_MIN_S) => {
+                let before = steps.predict(&base.plant, &base_effects, signals, validation.clone());
+                let after = steps.predict(&refit.plant, &refit.effects()?, signals, validation.clone());
+                let test = steps.test(signals, &base.plant, &before, &after, effect_alpha * STEP_ALPHA_SHARE);
+                test.passed().then_some((steps, after, test))
+            }
+            _ => None,
+        };
+        let (test, alpha) = match &at_steps {
+            Some((_, _, test)) => (*test, effect_alpha * STEP_ALPHA_SHARE),
+            None => (segment_test, segment_alpha),
+        };
         let refit_alone = if found_nothing {
             None
         } else {
@@ -302,7 +340,8 @@ pub fn diagnose_with(
                 part,
                 &after_prediction,
                 validation.clone(),
-                tried,
+                alpha,
+                at_steps.as_ref().map(|(steps, after, _)| (*steps, after)),
             )?
         };
         if found_nothing {
@@ -311,14 +350,6 @@ pub fn diagnose_with(
             }
         }
         let output = part.output();
-        let test = paired_test(
-            signals,
-            part,
-            &before_prediction,
-            &after_prediction,
-            validation.clone(),
-            tried,
-        );
         let (nrmse_before, nrmse_after) = (before[output], after[output]);
         let score = if nrmse_before > 0.0 && nrmse_after.is_finite() {
             1.0 - nrmse_after / nrmse_before

@@ -131,9 +131,12 @@ pub(super) fn at_null_value(kind: EffectKind, params: &BTreeMap<String, f64>) ->
 
 /// The validation NRMSE of `refit` with `kind` taken out, when the effect
 /// itself does not remove the share of the error that counts from it (by
-/// the same segment tests as against the baseline): the refit's gain is
-/// then its other parameters', not the effect's. `None` when the effect
-/// earns its place. An encoder's lattice is judged by the readings.
+/// the test that judged it against the baseline, at its level `alpha`: the
+/// segment tests, or the steps' windows with the refit's prediction there):
+/// the refit's gain is then its other parameters', not the effect's. `None`
+/// when the effect earns its place. An encoder's lattice is judged by the
+/// readings.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn refit_without_effect(
     signals: &Signals,
     refit: &Model,
@@ -141,15 +144,23 @@ pub(super) fn refit_without_effect(
     part: Part,
     with_effect: &Prediction,
     validation: Range<usize>,
-    tried: usize,
+    alpha: f64,
+    at_steps: Option<(&StepWindows, &Prediction)>,
 ) -> Result<Option<f64>, ModelError> {
     if kind == EffectKind::Quantization {
         return Ok(None);
     }
     let mut without = refit.effects.clone();
     without.0.remove(kind.name());
-    let prediction = crate::greybox::predict(&refit.plant, &without.build()?, signals, validation.clone());
-    let own = paired_test(signals, part, &prediction, with_effect, validation.clone(), tried);
+    let without = without.build()?;
+    let prediction = crate::greybox::predict(&refit.plant, &without, signals, validation.clone());
+    let own = match at_steps {
+        Some((steps, with_effect)) => {
+            let without_at_steps = steps.predict(&refit.plant, &without, signals, validation.clone());
+            steps.test(signals, &refit.plant, &without_at_steps, with_effect, alpha)
+        }
+        None => paired_test_at(signals, part, &prediction, with_effect, validation.clone(), alpha),
+    };
     if own.passed() {
         return Ok(None);
     }

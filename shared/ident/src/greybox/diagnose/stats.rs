@@ -19,6 +19,7 @@ impl SegmentTest {
             SegmentTest::PairedT => "paired_t",
             SegmentTest::SignedRank => "signed_rank",
             SegmentTest::ErrorShare => "error_share",
+            SegmentTest::StepWindows => "step_windows",
         }
     }
 }
@@ -79,6 +80,18 @@ pub(super) fn paired_test(
     validation: Range<usize>,
     tried: usize,
 ) -> PairedTest {
+    paired_test_at(signals, part, before, after, validation, FAMILY_ALPHA / tried as f64)
+}
+
+/// [`paired_test`] at the effect's level `alpha`.
+pub(super) fn paired_test_at(
+    signals: &Signals,
+    part: Part,
+    before: &Prediction,
+    after: &Prediction,
+    validation: Range<usize>,
+    alpha: f64,
+) -> PairedTest {
     let errors = segment_errors(signals, part, before, after, validation);
     let differences: Vec<f64> = errors
         .iter()
@@ -103,7 +116,7 @@ pub(super) fn paired_test(
     } else {
         vec![&differences, &share_part]
     };
-    let alpha = joint_level(&parts, FAMILY_ALPHA / tried as f64);
+    let alpha = joint_level(&parts, alpha);
     let t = paired_t(&differences, effective, alpha);
     let rank = with_rank.then(|| signed_rank(&differences, effective, alpha));
     let share = error_share(&errors, alpha);

@@ -35,6 +35,10 @@ pub(super) enum SegmentTest {
     /// the segments that hold most of the error gain and the quiet ones,
     /// noise alone, cannot (a delay, seen where the command steps).
     ErrorShare,
+    /// The error-share t over segments that start just before each large
+    /// step of the command, sample by sample: a delay told from a lag,
+    /// which between the steps takes up the delay's phase.
+    StepWindows,
 }
 
 /// The verdict when the first effect is significant but the record cannot
@@ -293,11 +297,21 @@ pub(super) fn evidence(
         SegmentTest::PairedT => ("paired t", "each segment's fall"),
         SegmentTest::SignedRank => ("signed-rank z", "each segment's fall"),
         SegmentTest::ErrorShare => ("error-share t", "the fall of the summed error"),
+        SegmentTest::StepWindows => ("error-share t at the command's steps", "the fall of the summed error"),
+    };
+    let over = if test.kind == SegmentTest::StepWindows {
+        format!(
+            "the windows of {} steps ({:.1} effective samples)",
+            test.segments, test.effective
+        )
+    } else {
+        format!(
+            "{} validation segments ({:.1} effective)",
+            test.segments, test.effective
+        )
     };
     let judged = format!(
-        "{name} over {} validation segments ({:.1} effective) of {of_what} beyond {:.0}% of the error: {:.1} against {:.1} (one-sided, α = {FAMILY_ALPHA} shared by the effects tried and the segment tests)",
-        test.segments,
-        test.effective,
+        "{name} over {over} of {of_what} beyond {:.0}% of the error: {:.1} against {:.1} (one-sided, α = {FAMILY_ALPHA} shared by the effects tried and the segment tests)",
         100.0 * MIN_ERROR_REMOVED,
         test.statistic,
         test.threshold
