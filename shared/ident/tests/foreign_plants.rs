@@ -202,3 +202,17 @@ fn a_delay_beside_a_slow_valve_is_named_on_plants_nobody_picked() {
         nothing_significant(seed);
     }
 }
+
+/// A stop the baseline absorbed into its valve and oil: bench plants
+/// 1002015 and 1002016 with the spool stopped at a fifth of its travel,
+/// well inside the command's range (35–40 % of the samples beyond it), and
+/// the bench's plant 1002021 at half its travel. The baseline without the
+/// stop lowers its flow gain until it fits the pressures at 16–31 %;
+/// beside it no start of the stop screens better than none, so the stop is
+/// fitted from the data sheet's valve and oil too.
+#[test]
+fn a_spool_stop_the_baseline_absorbed_is_named_bench_plants_1002015_16_and_21() {
+    for (seed, limit) in [(1_002_015, 0.2), (1_002_016, 0.2), (1_002_021, 0.5)] {
+        named_first(seed, Hidden::Saturation { limit }).unwrap_or_else(|e| panic!("{e}"));
+    }
+}

@@ -60,6 +60,11 @@ use staircase::*;
 /// Length of one shooting segment, s.
 pub const SEGMENT_S: f64 = 0.5;
 
+/// A validation NRMSE above which an output is not explained (a fit under
+/// 80 %): the clean plants, ours and the foreign ones, fit their pressures
+/// to 0.003–0.016 and their angle to 0.001–0.004.
+pub(crate) const UNEXPLAINED_NRMSE: f64 = 0.2;
+
 /// What a long fit reports as it goes, for a progress display: the
 /// library prints nothing itself.
 pub trait Progress: Sync {

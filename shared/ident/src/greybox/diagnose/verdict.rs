@@ -89,7 +89,7 @@ pub(super) fn no_effect_verdict(
     let unexplained: Vec<String> = ["p_a", "p_b", "theta"]
         .into_iter()
         .filter_map(|o| baseline.get(o).map(|v| (o, *v)))
-        .filter(|(_, nrmse)| *nrmse > UNEXPLAINED_NRMSE)
+        .filter(|(_, nrmse)| *nrmse > crate::greybox::UNEXPLAINED_NRMSE)
         .map(|(o, nrmse)| format!("{o} (NRMSE {nrmse:.3}, a fit of {:.0} %)", 100.0 * (1.0 - nrmse)))
         .collect();
     if unexplained.is_empty() {
@@ -104,11 +104,6 @@ pub(super) fn no_effect_verdict(
         unexplained.join(" and ")
     )
 }
-
-/// A baseline validation NRMSE above which an output is not explained
-/// (a fit under 80 %): the clean plants, ours and the foreign ones, fit
-/// their pressures to 0.003–0.016 and their angle to 0.001–0.004.
-pub(super) const UNEXPLAINED_NRMSE: f64 = 0.2;
 
 /// The verdict from the candidates alone.
 fn catalog_verdict(candidates: &[Candidate], plausible_effects: &BTreeSet<String>) -> String {

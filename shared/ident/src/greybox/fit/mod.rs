@@ -16,12 +16,14 @@ use crate::lm::{self, LmOptions};
 
 mod knobs;
 mod rigid_body;
+mod sheet;
 mod uncertainty;
 
 use knobs::*;
 pub(crate) use knobs::{at_edge, encoder_step, param_at_edge};
 pub(crate) use rigid_body::pressure_lag_behind_motion;
 use rigid_body::*;
+use sheet::*;
 pub(crate) use uncertainty::effective_sample_size;
 pub use uncertainty::Uncertainty;
 use uncertainty::*;
@@ -528,6 +530,10 @@ pub(crate) fn fit_effect(
         .iter()
         .find_map(|(_, seeded)| fit_part(part, seeded, &knobs, signals, estimation.clone(), options, loss).ok())
         .ok_or_else(|| ModelError::Fit(format!("no start for `{kind}` simulates the {} part", part.name())))?;
+    let fitted = match from_the_data_sheet(part, &start, kind, &knobs, signals, &fitted, options, loss) {
+        Some(other) if other.cost < fitted.cost => other,
+        _ => fitted,
+    };
     let mut out = Model {
         plant: fitted.working.plant,
         effects: fitted.working.effects.clone(),
