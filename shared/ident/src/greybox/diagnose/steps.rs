@@ -191,6 +191,10 @@ mod tests {
             .all(|w| gapped.stretch_start(w.start) == gapped.stretch_start(w.end - 1)));
     }
 
+    fn delay_windows(signals: &Signals) -> StepWindows {
+        StepWindows::find(EffectKind::TimeDelay, Part::Hydraulic, signals, 10_000..20_000).expect("four steps")
+    }
+
     /// Before: 5 bar off for 150 ms after each window's start, a 0.1 bar
     /// ripple elsewhere; after, the first 150 ms's error scaled by `kept`.
     fn predictions(signals: &Signals, windows: &StepWindows, kept: f64) -> (Prediction, Prediction) {
@@ -219,8 +223,7 @@ mod tests {
     fn a_fall_at_the_steps_passes_and_a_sliver_does_not() {
         let signals = record(false);
         let plant = PlantParams::default();
-        let windows =
-            StepWindows::find(EffectKind::TimeDelay, Part::Hydraulic, &signals, 10_000..20_000).expect("four steps");
+        let windows = delay_windows(&signals);
         let (before, after) = predictions(&signals, &windows, 0.45);
         let test = windows.test(&signals, &plant, &before, &after, 2.5e-4);
         assert!(test.passed(), "{test:?}");
@@ -237,8 +240,7 @@ mod tests {
     fn a_chamber_both_models_hold_at_a_bound_carries_no_evidence() {
         let signals = record(false);
         let plant = PlantParams::default();
-        let windows =
-            StepWindows::find(EffectKind::TimeDelay, Part::Hydraulic, &signals, 10_000..20_000).expect("four steps");
+        let windows = delay_windows(&signals);
         let (before, after) = predictions(&signals, &windows, 0.45);
         let plain = windows.test(&signals, &plant, &before, &after, 2.5e-4);
         let (mut clamped_before, mut clamped_after) = (before.clone(), after.clone());
