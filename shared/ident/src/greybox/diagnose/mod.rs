@@ -296,11 +296,6 @@ pub fn diagnose_with(
             super::predict(&refit.plant, &refit.effects()?, signals, validation.clone())
         };
         let after = super::fit::nrmse_by_output(signals, &after_prediction, validation.clone());
-        // The candidate's refit moves the part's other parameters too, from
-        // starts of its own: what it gains may be a better fit of them, not
-        // the effect (a gravity load of 0.007 N·m took 65 % of the angle's
-        // error beside a Coulomb friction whose refit it improved). The
-        // effect itself must remove the share that counts from its refit.
         // A delay is also judged at the command's steps, where a lag cannot
         // take it up; the tests share its α.
         let effect_alpha = FAMILY_ALPHA / tried as f64;
@@ -330,6 +325,11 @@ pub fn diagnose_with(
             Some((_, _, test)) => (*test, effect_alpha * STEP_ALPHA_SHARE),
             None => (segment_test, segment_alpha),
         };
+        // The candidate's refit moves the part's other parameters too, from
+        // starts of its own: what it gains may be a better fit of them, not
+        // the effect (a gravity load of 0.007 N·m took 65 % of the angle's
+        // error beside a Coulomb friction whose refit it improved). The
+        // effect itself must remove the share that counts from its refit.
         let refit_alone = if found_nothing {
             None
         } else {

@@ -159,10 +159,10 @@ mod tests {
     use crate::data::Dataset;
 
     /// 20 s at 1 kHz, 100 bar in both chambers, the command ±0.5 stepping
-    /// every 2 s; readings 15.0–15.1 s left out when `gap`.
+    /// every 2 s; readings 14.2–14.3 s left out when `gap`.
     fn record(gap: bool) -> Signals {
         let n = 20_000;
-        let keep: Vec<usize> = (0..n).filter(|&k| !gap || !(15_000..15_100).contains(&k)).collect();
+        let keep: Vec<usize> = (0..n).filter(|&k| !gap || !(14_200..14_300).contains(&k)).collect();
         let column = |f: &dyn Fn(usize) -> f64| keep.iter().map(|&k| f(k)).collect::<Vec<f64>>();
         let columns = vec![
             ("t", column(&|k| k as f64 * 1e-3)),
@@ -181,11 +181,12 @@ mod tests {
         // The step at 10.000 s is the validation's first sample: no step
         // shows within it.
         assert_eq!(starts, vec![11_995, 13_995, 15_995, 17_995]);
-        // Readings left out at 15.0 s end a stretch at 15.0 s; the step
+        // Readings left out 14.2–14.3 s end a stretch at 14.2 s: the step
         // at 14 s keeps its window, cut where the stretch ends.
         let gapped = record(true);
         let windows = step_windows(&gapped, 10_000..gapped.len());
         assert_eq!(windows.len(), 4);
+        assert_eq!(windows[1], 13_995..14_200);
         assert!(windows
             .iter()
             .all(|w| gapped.stretch_start(w.start) == gapped.stretch_start(w.end - 1)));

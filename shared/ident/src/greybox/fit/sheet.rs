@@ -8,13 +8,13 @@ use super::*;
 /// ([`UNEXPLAINED_NRMSE`](crate::greybox::UNEXPLAINED_NRMSE)): a baseline without
 /// the effect may have absorbed it there, so far that no start of the
 /// effect beside it screens better than none. A spool stopped at a fifth
-/// of its travel left the baseline a fit of 17 % of the pressures; from it
+/// of its travel left the baseline a fit of 16 % of the pressures; from it
 /// the stop's fit went to no stop, from the data sheet to the stop within
 /// 0.1 %. The start screened best on that base is given a few iterations
 /// on the screening third, and fitted in full only if it then beats the
 /// effect's fit from the model there: fitted in full for every hydraulic
 /// effect, it took the foreign dead-zone plants' median diagnosis from 2.4
-/// to 3.4 s, and changed no verdict but the stop's.
+/// to 3.4 s.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn from_the_data_sheet(
     part: Part,
