@@ -30,10 +30,14 @@ fn bench_seed(case: &[Hidden]) -> u64 {
 }
 
 fn learned(names: &[&str]) -> (Learned, Vec<Hidden>, String) {
+    learned_with(names, Sensors::Full)
+}
+
+fn learned_with(names: &[&str], sensors: Sensors) -> (Learned, Vec<Hidden>, String) {
     let case: Vec<Hidden> = names.iter().map(|n| hidden(n)).collect();
     let data = foreign_plant(bench_seed(&case), &case, 60.0);
     let signals =
-        Signals::from_dataset(&Dataset::from_columns("foreign", data.record(Sensors::Full, 1))).expect("valid signals");
+        Signals::from_dataset(&Dataset::from_columns("foreign", data.record(sensors, 1))).expect("valid signals");
     let learned = greybox::learn(&signals, None, FitOptions::default(), 4, &greybox::Silent).expect("learns");
     (learned, case, data.description)
 }
@@ -85,4 +89,20 @@ fn a_gravity_load_and_coulomb_friction_told_from_a_flexible_coupling() {
     let first = &learned.steps[0];
     assert_eq!(first.effect, "gravity_load");
     assert_eq!(first.indistinguishable_from, ["load_flexibility"]);
+}
+
+/// Without pressures, a dead band and Coulomb friction: the loop adds the
+/// band, names no third effect, and says that from the angle alone the
+/// friction and the band act alike, so the record cannot tell whether both
+/// are there.
+#[test]
+fn a_dead_band_and_coulomb_friction_from_the_angle_alone_are_named_together() {
+    let (learned, _, plant) = learned_with(&["deadzone", "coulomb_friction"], Sensors::Motion);
+    let added: Vec<&str> = learned.steps.iter().map(|s| s.effect.as_str()).collect();
+    assert_eq!(added, ["deadzone"], "{plant}: {}", learned.last_verdict);
+    let verdict = &learned.last_verdict;
+    assert!(
+        verdict.contains("`coulomb_friction` and the `deadzone` in the model act alike"),
+        "{plant}: {verdict}"
+    );
 }

@@ -500,7 +500,14 @@ pub fn diagnose_with(
             best.threshold
         )
         }
-        _ => no_effect_verdict(&candidates, &plausible_effects, &before),
+        _ => {
+            let verdict = no_effect_verdict(&candidates, &plausible_effects, &before);
+            let in_model: BTreeSet<String> = base.effects.0.keys().cloned().collect();
+            match nearest(&candidates, &plausible_effects).and_then(|near| alike_in_the_model(near, &in_model)) {
+                Some(alike) => format!("{verdict}; {alike}"),
+                None => verdict,
+            }
+        }
     };
     Ok(Diagnosis {
         parts,

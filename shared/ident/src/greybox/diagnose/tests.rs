@@ -1,8 +1,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use super::{
-    before_after, both_exceed, error_share, joint_level, least_fall, nearest, no_effect_verdict, owens_t, paired_t,
-    readings_on_lattice, reported, signed_rank, Candidate, PairedTest, Part, SegmentTest,
+    alike_in_the_model, before_after, both_exceed, error_share, joint_level, least_fall, nearest, no_effect_verdict,
+    owens_t, paired_t, readings_on_lattice, reported, signed_rank, Candidate, PairedTest, Part, SegmentTest,
 };
 use statrs::distribution::{ContinuousCDF, Normal};
 
@@ -305,4 +305,23 @@ fn a_change_is_printed_with_the_decimals_that_show_it() {
     assert_eq!(before_after(0.0266, 0.0232), "0.0266 → 0.0232");
     assert_eq!(before_after(0.001914, 0.0019134), "0.001914 → 0.001913");
     assert_eq!(before_after(0.02, 0.02), "0.0200 → 0.0200");
+}
+
+/// Without pressures, Coulomb friction after a dead band was added
+/// (foreign plant 1117003, both hidden): both named, and that the record
+/// cannot tell whether both are there; not with pressures, nor beside an
+/// effect that acts otherwise.
+#[test]
+fn a_near_miss_alike_on_the_angle_with_an_effect_in_the_model_names_both() {
+    let mut near = turned_down("coulomb_friction", 2.7, 0.0195, 0.0191);
+    near.part = Part::Whole;
+    let band: BTreeSet<String> = ["deadzone".to_owned()].into();
+    let said = alike_in_the_model(&near, &band).expect("both named");
+    assert!(
+        said.contains("`coulomb_friction`") && said.contains("`deadzone`"),
+        "{said}"
+    );
+    assert!(alike_in_the_model(&near, &["gravity_load".to_owned()].into()).is_none());
+    near.part = Part::Mechanical;
+    assert!(alike_in_the_model(&near, &band).is_none(), "a torque tells them apart");
 }

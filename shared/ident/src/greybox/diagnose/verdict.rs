@@ -105,6 +105,36 @@ pub(super) fn no_effect_verdict(
     )
 }
 
+/// Effects that act alike on the angle: from the command and the angle
+/// alone, each holds the load still while the command is small (a band of
+/// the valve that passes no flow; a friction the drive must overcome).
+const ALIKE_ON_THE_ANGLE: [(&str, &str); 1] = [("deadzone", "coulomb_friction")];
+
+/// When the near miss acts on the angle alike with an effect the model
+/// already has, and the record has neither pressures nor a torque to tell
+/// them apart: both named, and that the record cannot say whether both are
+/// there (the one in the model may hold the other's share too).
+pub(super) fn alike_in_the_model(near: &Candidate, in_model: &BTreeSet<String>) -> Option<String> {
+    if near.part != Part::Whole {
+        return None;
+    }
+    let other = ALIKE_ON_THE_ANGLE.iter().find_map(|&(a, b)| {
+        if near.effect == a {
+            Some(b)
+        } else if near.effect == b {
+            Some(a)
+        } else {
+            None
+        }
+    })?;
+    in_model.contains(other).then(|| {
+        format!(
+            "from the command and the angle alone, `{}` and the `{other}` in the model act alike (each holds the load still while the command is small), and without pressures or a torque this record cannot tell whether both are there",
+            near.effect
+        )
+    })
+}
+
 /// The verdict from the candidates alone.
 fn catalog_verdict(candidates: &[Candidate], plausible_effects: &BTreeSet<String>) -> String {
     // A fit that clears the test without being the effect it names
