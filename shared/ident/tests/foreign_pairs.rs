@@ -106,3 +106,10 @@ fn a_dead_band_and_coulomb_friction_from_the_angle_alone_are_named_together() {
         "{plant}: {verdict}"
     );
 }
+
+/// Beside a 2° encoder the fit steers by the shaft's angle: by the
+/// reading's staircase the load's torque stayed at its start.
+#[test]
+fn a_gravity_load_beside_a_coarse_encoder() {
+    both_found(&["gravity_load", "quantization"]);
+}
