@@ -113,3 +113,11 @@ fn a_dead_band_and_coulomb_friction_from_the_angle_alone_are_named_together() {
 fn a_gravity_load_beside_a_coarse_encoder() {
     both_found(&["gravity_load", "quantization"]);
 }
+
+/// A play narrower than two steps of a 2° encoder: once the model rounds
+/// as the encoder does, a reading held at a reversal beyond the rounding
+/// is the play's.
+#[test]
+fn a_play_beside_a_coarse_encoder() {
+    both_found(&["backlash", "quantization"]);
+}

@@ -17,7 +17,11 @@ pub(super) fn not_itself(
     if let Some(edge) = crate::greybox::fit::at_edge(kind, params) {
         return Some(edge);
     }
-    if kind == EffectKind::Backlash {
+    // A model that rounds the shaft as the encoder does holds its readings
+    // at a reversal as long as rounding alone would: a play's gain beside
+    // it is the play's.
+    let rounds_as_the_encoder = refit.effects.0.contains_key(EffectKind::Quantization.name());
+    if kind == EffectKind::Backlash && !rounds_as_the_encoder {
         let width = params.get("width").copied().unwrap_or(0.0);
         let step = crate::greybox::fit::encoder_step(&signals.theta);
         // A quantized reading may stand still for up to a step after any
