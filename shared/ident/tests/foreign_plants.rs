@@ -5,7 +5,7 @@
 //! quadratic friction, its own P controller and reference), with one hidden
 //! effect or none. A fixed subset of `hydractl bench foreign`, from seeds
 //! chosen before the tests were run: nothing significant where nothing is
-//! hidden, the hidden effect named first with its main parameter within
+//! hidden (alone or two together), the hidden effect named first with its main parameter within
 //! 25 % (all but one of the nine), another valve law named, added and then
 //! nothing missing, and on every data set no effect at its null value beating the
 //! baseline.
@@ -29,10 +29,20 @@ fn diagnosed(seed: u64, hidden: Option<Hidden>) -> Diagnosis {
 }
 
 fn nothing_significant(seed: u64) {
-    let diagnosis = diagnosed(seed, None);
+    let data = foreign_plant(seed, &[], 60.0);
+    let signals = signals(&data);
+    let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
+    common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
     let significant = common::significant(&diagnosis);
     assert!(significant.is_empty(), "seed {seed}: {significant:?}");
     assert!(diagnosis.verdict.starts_with("no effect"), "{}", diagnosis.verdict);
+    // Nor two near misses together, the step `learn` takes next.
+    let pair = greybox::together(&signals, &diagnosis, FitOptions::default()).expect("pairs judged");
+    assert!(
+        pair.is_none(),
+        "seed {seed}: {:?}",
+        pair.map(|p| (p.first, p.second, p.statistic, p.threshold))
+    );
 }
 
 /// Whether the hidden effect comes first and significant, with its main

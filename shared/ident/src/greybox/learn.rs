@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::diagnose::{diagnose_with, Diagnosis};
+use super::diagnose::{diagnose_with, together, Diagnosis, Together};
 use super::{FitOptions, Model, ModelError, Progress, Signals};
 
 /// One effect added: what it did and the test that decided.
@@ -33,6 +33,10 @@ pub struct LearnStep {
     /// from this one (it was taken as the one with the fewest parameters).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub indistinguishable_from: Vec<String>,
+    /// The effect added in the same step, where neither was significant
+    /// alone: the test is the pair's, against the model without either.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub together_with: Option<String>,
 }
 
 /// Why the loop ended.
@@ -96,6 +100,24 @@ pub fn learn(
         let diagnosis = diagnose_with(signals, model.as_ref(), options, progress)?;
         let first = diagnosis.candidates.first().filter(|c| c.significant);
         let Some(first) = first else {
+            if steps.len() + 2 <= max_steps {
+                if let Some(pair) = together(signals, &diagnosis, options)? {
+                    let mut next = pair.model.clone();
+                    for step in pair_steps(&pair) {
+                        progress.added(steps.len(), &step);
+                        steps.push(step);
+                    }
+                    // The history's last two entries are the pair's.
+                    let n = next.history.len();
+                    for entry in next.history[n.saturating_sub(2)..].iter_mut() {
+                        entry.test = Some(pair.test.to_owned());
+                        entry.statistic = Some(pair.statistic);
+                        entry.threshold = Some(pair.threshold);
+                    }
+                    model = Some(next);
+                    continue;
+                }
+            }
             return Ok(Learned {
                 model: diagnosis.baseline_model.clone(),
                 steps,
@@ -133,6 +155,7 @@ pub fn learn(
             statistic: best.statistic,
             threshold: best.threshold,
             indistinguishable_from: alternatives,
+            together_with: None,
         };
         if let Some(last) = next.history.last_mut() {
             last.test = Some(step.test.to_owned());
@@ -152,6 +175,28 @@ pub fn learn(
         }
         model = Some(next);
     }
+}
+
+/// The two steps of a pair added together: each with its own parameters
+/// and the output's NRMSE it moved, the pair's test on both.
+fn pair_steps(pair: &Together) -> [LearnStep; 2] {
+    let params = |name: &str| pair.model.effects.0.get(name).cloned().unwrap_or_default();
+    let step = |effect: &str, other: &str, before: f64, after: f64| LearnStep {
+        effect: effect.to_owned(),
+        output: pair.output.clone(),
+        nrmse_before: before,
+        nrmse_after: after,
+        params: params(effect),
+        test: pair.test,
+        statistic: pair.statistic,
+        threshold: pair.threshold,
+        indistinguishable_from: Vec::new(),
+        together_with: Some(other.to_owned()),
+    };
+    [
+        step(&pair.first, &pair.second, pair.nrmse_before, pair.nrmse_first_alone),
+        step(&pair.second, &pair.first, pair.nrmse_first_alone, pair.nrmse_after),
+    ]
 }
 
 impl LearnProgress for super::Silent {

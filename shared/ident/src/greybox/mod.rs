@@ -37,7 +37,7 @@ mod staircase;
 mod tests;
 
 pub use compare::{compare, measured_outputs, Comparison, CorrelationTest, OutputScore, RegimeScore, REGIMES};
-pub use diagnose::{diagnose, diagnose_with, Candidate, Diagnosis, NotJudged};
+pub use diagnose::{diagnose, diagnose_with, together, Candidate, Diagnosis, NotJudged, Together};
 pub use fit::{fit, fit_baseline, validation_nrmse, FitOptions, Uncertainty};
 pub use learn::{learn, LearnProgress, LearnStep, Learned, Stop};
 pub use shadow::{

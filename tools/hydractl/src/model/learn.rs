@@ -22,7 +22,8 @@ pub struct LearnArgs {
     #[arg(long)]
     out: PathBuf,
     /// Print {"steps": [{"effect", "output", "nrmse_before", "nrmse_after",
-    /// "params", "test", "statistic", "threshold"}], "stopped_because", "stop", "out"}.
+    /// "params", "test", "statistic", "threshold"}], "stopped_because", "stop", "out"};
+    /// a step added with another, neither significant alone, names it in "together_with".
     #[arg(long)]
     json: bool,
     /// Also write the HTML report of the model learned (`model report`).
@@ -79,8 +80,12 @@ fn step_line(index: usize, step: &LearnStep) -> String {
             names.join(" or ")
         )
     };
+    let together = match &step.together_with {
+        Some(other) => format!(" (with `{other}`: neither is significant alone, the test is the pair's)"),
+        None => String::new(),
+    };
     format!(
-        "step {}: add `{}`: {} validation NRMSE {:.4} → {:.4}{}; {} {:.1} against {:.1}{tied}",
+        "step {}: add `{}`{together}: {} validation NRMSE {:.4} → {:.4}{}; {} {:.1} against {:.1}{tied}",
         index + 1,
         step.effect,
         step.output,

@@ -25,6 +25,7 @@ use statrs::distribution::{ContinuousCDF, Normal, StudentsT};
 use super::fit::{fit_baseline, fit_effect, part_loss, refit_part, FitOptions, Uncertainty};
 use super::{Model, ModelError, Part, Prediction, Signals};
 
+mod pairs;
 mod plausibility;
 mod stats;
 mod steps;
@@ -33,6 +34,7 @@ mod tests;
 mod ties;
 mod verdict;
 
+pub use pairs::{together, Together};
 use plausibility::*;
 use stats::*;
 use steps::*;
