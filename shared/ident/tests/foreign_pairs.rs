@@ -1,9 +1,10 @@
 //! `learn` on foreign plants (`hydractl_sim::foreign`, written apart from
 //! the model) with two effects hidden at once: a fixed subset of `hydractl
 //! bench foreign --effects pairs`, its plants the bench's first of each
-//! case (seed 1), and a second where the first shows nothing new. The loop adds both, each main parameter within 25 % in
-//! the model learned, and stops because nothing more helps; where the
-//! record cannot tell two effects apart it says so and takes the simpler.
+//! case (seed 1), and a second where the first shows nothing new. The
+//! loop adds both, each main parameter within 25 % in the model learned,
+//! and stops because nothing more helps; where the record cannot tell two
+//! effects apart it says so and takes the simpler.
 
 use hydractl_ident::greybox::{self, FitOptions, Learned, Signals, Stop};
 use hydractl_ident::Dataset;

@@ -5,10 +5,10 @@
 //! quadratic friction, its own P controller and reference), with one hidden
 //! effect or none. A fixed subset of `hydractl bench foreign`, from seeds
 //! chosen before the tests were run: nothing significant where nothing is
-//! hidden (alone or two together), the hidden effect named first with its main parameter within
-//! 25 % (all but one of the nine), another valve law named, added and then
-//! nothing missing, and on every data set no effect at its null value beating the
-//! baseline.
+//! hidden (alone or two together), the hidden effect named first with its
+//! main parameter within 25 % (all but one of the nine), another valve law
+//! named, added and then nothing missing, and on every data set no effect
+//! at its null value beating the baseline.
 
 mod common;
 
@@ -22,17 +22,20 @@ fn signals(data: &ForeignData) -> Signals {
 }
 
 fn diagnosed(seed: u64, hidden: Option<Hidden>) -> Diagnosis {
-    let data = foreign_plant(seed, hidden.as_slice(), 60.0);
-    let diagnosis = diagnose(&signals(&data), None, FitOptions::default()).expect("diagnoses");
-    common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
-    diagnosis
+    diagnosed_from(seed, hidden).1
 }
 
-fn nothing_significant(seed: u64) {
-    let data = foreign_plant(seed, &[], 60.0);
+/// The record's signals and their diagnosis.
+fn diagnosed_from(seed: u64, hidden: Option<Hidden>) -> (Signals, Diagnosis) {
+    let data = foreign_plant(seed, hidden.as_slice(), 60.0);
     let signals = signals(&data);
     let diagnosis = diagnose(&signals, None, FitOptions::default()).expect("diagnoses");
     common::no_null_effect_beats_the_baseline(&diagnosis, &data.description);
+    (signals, diagnosis)
+}
+
+fn nothing_significant(seed: u64) {
+    let (signals, diagnosis) = diagnosed_from(seed, None);
     let significant = common::significant(&diagnosis);
     assert!(significant.is_empty(), "seed {seed}: {significant:?}");
     assert!(diagnosis.verdict.starts_with("no effect"), "{}", diagnosis.verdict);

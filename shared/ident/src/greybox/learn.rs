@@ -102,11 +102,11 @@ pub fn learn(
         let Some(first) = first else {
             if steps.len() + 2 <= max_steps {
                 if let Some(pair) = together(signals, &diagnosis, options)? {
-                    let mut next = pair.model.clone();
                     for step in pair_steps(&pair) {
                         progress.added(steps.len(), &step);
                         steps.push(step);
                     }
+                    let mut next = pair.model;
                     // The history's last two entries are the pair's.
                     let n = next.history.len();
                     for entry in next.history[n.saturating_sub(2)..].iter_mut() {

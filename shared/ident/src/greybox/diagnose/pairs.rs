@@ -3,9 +3,9 @@
 //! it: beside a gravity load, Coulomb friction took the angle's NRMSE
 //! 0.0425 → 0.0394 (z = 2.3 against 3.4) and the load alone → 0.0356 (t =
 //! 1.3 against 4.1), where both together took it to 0.0018. When nothing
-//! is significant alone, the two nearest misses of one part are fitted
-//! together and judged as one, at the family's α shared by every pair the
-//! diagnosis could have chosen.
+//! is significant alone, the three nearest misses of each part are fitted
+//! two by two and each pair judged as one, at the family's α shared by
+//! every pair the diagnosis could have chosen.
 
 use super::*;
 
@@ -29,9 +29,9 @@ pub struct Together {
     pub threshold: f64,
 }
 
-/// A near miss worth pairing: it lowers its output's error, is not the
-/// refit's gain alone or a stand-in, and is not the encoder's staircase
-/// (which its readings show or do not, whatever else is missing).
+/// A near miss worth pairing: it lowers its output's error, stands in for
+/// nothing the catalog lacks, and is not the encoder's staircase (which
+/// its readings show or do not, whatever else is missing).
 fn pairable(candidate: &Candidate) -> bool {
     !candidate.significant
         && candidate.stands_in.is_none()
@@ -40,9 +40,10 @@ fn pairable(candidate: &Candidate) -> bool {
         && candidate.validation_nrmse_after < candidate.validation_nrmse_before
 }
 
-/// When `diagnosis` found nothing significant: the two nearest misses of
-/// one part fitted together, if together they pass the segment tests and
-/// each earns its place beside the other. `None` otherwise.
+/// When `diagnosis` found nothing significant: of the pairs of each part's
+/// nearest misses fitted together, the one that passes the segment tests
+/// by the widest share, beats each alone, and in which each earns its
+/// place beside the other. `None` otherwise.
 pub fn together(signals: &Signals, diagnosis: &Diagnosis, options: FitOptions) -> Result<Option<Together>, ModelError> {
     if diagnosis.candidates.iter().any(|c| c.significant) {
         return Ok(None);
@@ -83,10 +84,9 @@ pub fn together(signals: &Signals, diagnosis: &Diagnosis, options: FitOptions) -
         .into_par_iter()
         .map(|(first, second)| judge_pair(signals, diagnosis, options, first, second, alpha))
         .collect::<Result<_, _>>()?;
-    Ok(judged
-        .into_iter()
-        .flatten()
-        .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold))))
+    Ok(judged.into_iter().flatten().max_by(|a, b| {
+        share_of_threshold(a.statistic, a.threshold).total_cmp(&share_of_threshold(b.statistic, b.threshold))
+    }))
 }
 
 /// How many of each part's nearest misses are paired: three pairs a part.
@@ -137,8 +137,8 @@ fn judge_pair(
         if at_null_value(kind, &params) || not_itself(kind, &params, signals, &both).is_some() {
             return Ok(None);
         }
-        let alone = refit_without_effect(signals, &both, kind, part, &after, validation.clone(), alpha, None)?;
-        if alone.is_some() {
+        let without = refit_without_effect(signals, &both, kind, part, &after, validation.clone(), alpha, None)?;
+        if without.is_some() {
             return Ok(None);
         }
     }
