@@ -140,6 +140,13 @@ fn coulomb_friction_and_a_gravity_load_too_weak_alone_are_added_together_bench_p
     let learned = both_found_in(learned_on(&["coulomb_friction", "gravity_load"], Sensors::Full, 2));
     let first = &learned.steps[0];
     assert_eq!(first.together_with.as_deref(), Some(learned.steps[1].effect.as_str()));
+    // The model file's history says so too, on both steps.
+    let history = &learned.model.history;
+    let [first, second] = &history[history.len() - 2..] else {
+        panic!("a baseline and two steps: {history:?}")
+    };
+    assert_eq!(first.together_with.as_deref(), Some(second.step.as_str()));
+    assert_eq!(second.together_with.as_deref(), Some(first.step.as_str()));
 }
 
 /// From the angle alone, a dead band and a spool stop: each alone was no

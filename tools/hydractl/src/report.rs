@@ -475,9 +475,13 @@ pub fn write_with(
             };
             let r0 = residual(measured, &y0, scale);
             let r1 = residual(measured, &y1, scale);
+            let together = match &pair[1].together_with {
+                Some(other) => format!(" (with {other}: neither was significant alone, the two together were)"),
+                None => String::new(),
+            };
             history.push((
                 format!(
-                    "Adding {}: the {output} residual before the step (grey) and after it (colour).",
+                    "Adding {}{together}: the {output} residual before the step (grey) and after it (colour).",
                     pair[1].step
                 ),
                 chart(

@@ -109,10 +109,12 @@ pub fn learn(
                     let mut next = pair.model;
                     // The history's last two entries are the pair's.
                     let n = next.history.len();
-                    for entry in next.history[n.saturating_sub(2)..].iter_mut() {
+                    let others = [&pair.second, &pair.first];
+                    for (entry, other) in next.history[n.saturating_sub(2)..].iter_mut().zip(others) {
                         entry.test = Some(pair.test.to_owned());
                         entry.statistic = Some(pair.statistic);
                         entry.threshold = Some(pair.threshold);
+                        entry.together_with = Some(other.clone());
                     }
                     model = Some(next);
                     continue;

@@ -183,6 +183,10 @@ pub struct HistoryStep {
     pub statistic: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<f64>,
+    /// The effect added with it, where neither was significant alone and
+    /// the test was the pair's (`model learn`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub together_with: Option<String>,
 }
 
 impl HistoryStep {
@@ -202,6 +206,7 @@ impl HistoryStep {
             test: None,
             statistic: None,
             threshold: None,
+            together_with: None,
         }
     }
 
