@@ -342,11 +342,20 @@ const MAX_WHOLE_SUBSTEPS: usize = 64;
 /// neutral pressure). The spool runs through the whole record unbroken,
 /// driven by the (delayed) command, settled on it after readings left
 /// out.
-pub(crate) fn predict_whole(
+fn predict_whole(plant: &PlantParams, effects: &Effects, signals: &Signals, range: Range<usize>, out: &mut Prediction) {
+    let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
+    predict_whole_from(plant, effects, signals, range, &segment_starts, out);
+}
+
+/// [`predict_whole`] with the state estimated from the measurement at
+/// `segment_starts` (ascending, each stretch's first within `range` among
+/// them).
+pub(crate) fn predict_whole_from(
     plant: &PlantParams,
     effects: &Effects,
     signals: &Signals,
     range: Range<usize>,
+    segment_starts: &[usize],
     out: &mut Prediction,
 ) {
     // The exact step leaves to RK4 every step that crosses a dead band's
@@ -366,7 +375,6 @@ pub(crate) fn predict_whole(
         return;
     };
     let neutral = machine.neutral_pressure();
-    let segment_starts: Vec<usize> = segments(signals, range.clone()).map(|s| s.start).collect();
     let mut next_start = 0;
     let mut follower = 0.0;
     for k in 0..range.end {

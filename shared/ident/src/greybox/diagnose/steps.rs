@@ -4,8 +4,8 @@
 //! a delay lives in the few segments after the command's steps, too few
 //! for the segment tests (5 of 36 can carry a paired t to 2.4 at most).
 //! Here the validation's segments start just before each large step, and
-//! the share of their summed pressure error that the delay removes is
-//! judged sample by sample.
+//! the share of their summed error that the delay removes is judged sample
+//! by sample: the pressures' where they are measured, else the angle's.
 
 use hydractl_plant::effects::Effects;
 use hydractl_plant::PlantParams;
@@ -38,6 +38,8 @@ pub(super) const STEP_ALPHA_SHARE: f64 = 0.25;
 
 /// The validation's segments re-anchored at the command's large steps.
 pub(super) struct StepWindows {
+    /// The part predicted: the hydraulic (pressures) or the whole (angle).
+    part: Part,
     windows: Vec<Range<usize>>,
     /// The windows' starts and each stretch's first sample, ascending:
     /// where a prediction takes the measured pressures.
@@ -45,10 +47,12 @@ pub(super) struct StepWindows {
 }
 
 impl StepWindows {
-    /// For a delay on the hydraulic part of a record sampled finely enough
-    /// with [`MIN_STEPS`] steps in `validation`; `None` otherwise.
+    /// For a delay on the hydraulic or the whole part of a record sampled
+    /// finely enough with [`MIN_STEPS`] steps in `validation`; `None`
+    /// otherwise.
     pub(super) fn find(kind: EffectKind, part: Part, signals: &Signals, validation: Range<usize>) -> Option<Self> {
-        if kind != EffectKind::TimeDelay || part != Part::Hydraulic || signals.dt > MAX_STEP_DT_S {
+        let predicts_the_valve = matches!(part, Part::Hydraulic | Part::Whole);
+        if kind != EffectKind::TimeDelay || !predicts_the_valve || signals.dt > MAX_STEP_DT_S {
             return None;
         }
         let windows = step_windows(signals, validation.clone());
@@ -62,11 +66,11 @@ impl StepWindows {
             .collect();
         starts.sort_unstable();
         starts.dedup();
-        Some(Self { windows, starts })
+        Some(Self { part, windows, starts })
     }
 
-    /// The pressures predicted over `validation`, each window starting
-    /// from the measured pressures.
+    /// The part's outputs predicted over `validation`, each window starting
+    /// from the measured state.
     pub(super) fn predict(
         &self,
         plant: &PlantParams,
@@ -75,14 +79,16 @@ impl StepWindows {
         validation: Range<usize>,
     ) -> Prediction {
         let mut out = Prediction::new(signals.len());
-        crate::greybox::predict_hydraulic_from(plant, effects, signals, validation, &self.starts, &mut out);
+        if self.part == Part::Whole {
+            crate::greybox::predict_whole_from(plant, effects, signals, validation, &self.starts, &mut out);
+        } else {
+            crate::greybox::predict_hydraulic_from(plant, effects, signals, validation, &self.starts, &mut out);
+        }
         out
     }
 
     /// The error-share t of `after` against `before` over the windows'
-    /// samples, at `alpha`. A chamber that both predictions hold at the
-    /// same tank or supply bound is left out there: the two models agree
-    /// on it by construction, so it carries no evidence between them.
+    /// samples, at `alpha`.
     pub(super) fn test(
         &self,
         signals: &Signals,
@@ -91,37 +97,20 @@ impl StepWindows {
         after: &Prediction,
         alpha: f64,
     ) -> PairedTest {
-        let tolerance = 1e-9 * plant.supply_pressure.abs().max(1.0);
-        let bound = |p: f64| {
-            if (p - plant.tank_pressure).abs() <= tolerance {
-                Some(false)
-            } else if (p - plant.supply_pressure).abs() <= tolerance {
-                Some(true)
-            } else {
-                None
-            }
+        let samples = self.windows.iter().flat_map(|w| w.clone());
+        let errors: Vec<(f64, f64)> = if self.part == Part::Whole {
+            samples
+                .filter(|&k| before.theta[k].is_finite() && after.theta[k].is_finite())
+                .map(|k| {
+                    let y = signals.theta[k];
+                    ((y - before.theta[k]).powi(2), (y - after.theta[k]).powi(2))
+                })
+                .collect()
+        } else {
+            samples
+                .filter_map(|k| pressure_errors(signals, plant, before, after, k))
+                .collect()
         };
-        let chambers = [
-            (&signals.p_a, &before.p_a, &after.p_a),
-            (&signals.p_b, &before.p_b, &after.p_b),
-        ];
-        let errors: Vec<(f64, f64)> = self
-            .windows
-            .iter()
-            .flat_map(|w| w.clone())
-            .filter_map(|k| {
-                let (mut error_before, mut error_after, mut counted) = (0.0, 0.0, 0);
-                for (y, b, a) in &chambers {
-                    let both_bound = bound(b[k]).is_some() && bound(b[k]) == bound(a[k]);
-                    if b[k].is_finite() && a[k].is_finite() && !both_bound {
-                        error_before += (y[k] - b[k]).powi(2);
-                        error_after += (y[k] - a[k]).powi(2);
-                        counted += 1;
-                    }
-                }
-                (counted > 0).then_some((error_before, error_after))
-            })
-            .collect();
         // The test counts the steps; its effective number is the samples'.
         PairedTest {
             kind: SegmentTest::StepWindows,
@@ -129,6 +118,43 @@ impl StepWindows {
             ..error_share(&errors, alpha)
         }
     }
+}
+
+/// The summed squared errors of both chambers at sample `k`, before and
+/// after; `None` where no chamber counts. A chamber that both predictions
+/// hold at the same tank or supply bound is left out: the two models agree
+/// on it by construction, so it carries no evidence between them.
+fn pressure_errors(
+    signals: &Signals,
+    plant: &PlantParams,
+    before: &Prediction,
+    after: &Prediction,
+    k: usize,
+) -> Option<(f64, f64)> {
+    let tolerance = 1e-9 * plant.supply_pressure.abs().max(1.0);
+    let bound = |p: f64| {
+        if (p - plant.tank_pressure).abs() <= tolerance {
+            Some(false)
+        } else if (p - plant.supply_pressure).abs() <= tolerance {
+            Some(true)
+        } else {
+            None
+        }
+    };
+    let chambers = [
+        (&signals.p_a, &before.p_a, &after.p_a),
+        (&signals.p_b, &before.p_b, &after.p_b),
+    ];
+    let (mut error_before, mut error_after, mut counted) = (0.0, 0.0, 0);
+    for (y, b, a) in &chambers {
+        let both_bound = bound(b[k]).is_some() && bound(b[k]) == bound(a[k]);
+        if b[k].is_finite() && a[k].is_finite() && !both_bound {
+            error_before += (y[k] - b[k]).powi(2);
+            error_after += (y[k] - a[k]).powi(2);
+            counted += 1;
+        }
+    }
+    (counted > 0).then_some((error_before, error_after))
 }
 
 /// One segment from [`STEP_LEAD_S`] before each step of the command by
@@ -232,9 +258,11 @@ mod tests {
         let (before, after) = predictions(&signals, &windows, 0.995);
         let test = windows.test(&signals, &plant, &before, &after, 2.5e-4);
         assert!(!test.passed(), "{test:?}");
-        // Only a delay on the pressures is judged at the steps.
+        // Only a delay on the valve's path is judged at the steps: on the
+        // pressures, or on the angle where no pressures are measured.
         assert!(StepWindows::find(EffectKind::Deadzone, Part::Hydraulic, &signals, 10_000..20_000).is_none());
         assert!(StepWindows::find(EffectKind::TimeDelay, Part::Mechanical, &signals, 10_000..20_000).is_none());
+        assert!(StepWindows::find(EffectKind::TimeDelay, Part::Whole, &signals, 10_000..20_000).is_some());
     }
 
     #[test]
@@ -263,5 +291,27 @@ mod tests {
             (clamped.statistic - reference.statistic).abs() < 1e-9 * reference.statistic.abs(),
             "{clamped:?} against {reference:?}"
         );
+    }
+
+    #[test]
+    fn without_pressures_the_angle_in_the_windows_is_judged() {
+        let signals = record(false);
+        let plant = PlantParams::default();
+        let windows =
+            StepWindows::find(EffectKind::TimeDelay, Part::Whole, &signals, 10_000..20_000).expect("four steps");
+        let (mut before, mut after) = (Prediction::new(signals.len()), Prediction::new(signals.len()));
+        for w in &windows.windows {
+            for k in w.clone() {
+                let early = if k - w.start < 150 { 2e-3 } else { 0.0 };
+                let noise = 1e-5 * (k as f64 * 0.37).sin();
+                before.theta[k] = signals.theta[k] + early + noise;
+                after.theta[k] = signals.theta[k] + 0.3 * early + noise;
+            }
+        }
+        let test = windows.test(&signals, &plant, &before, &after, 2.5e-4);
+        assert!(test.passed(), "{test:?}");
+        // A model no nearer the angle than the baseline gains nothing there.
+        let test = windows.test(&signals, &plant, &before, &before, 2.5e-4);
+        assert!(!test.passed(), "{test:?}");
     }
 }
