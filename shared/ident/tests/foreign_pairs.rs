@@ -160,3 +160,17 @@ fn a_dead_band_and_a_spool_stop_from_the_angle_alone_are_added_together() {
         learned.steps
     );
 }
+
+/// A dead band whose segments passed (t 4.1 against 3.7) while it took the
+/// pressures' NRMSE 0.52 → 0.76, beside a spool stop fitted to nothing
+/// alone: the band is paired with each effect of its part, and with the
+/// stop both are found.
+#[test]
+fn a_dead_band_that_fits_worse_alone_is_paired_with_a_spool_stop_bench_plant_2() {
+    let learned = both_found_in(learned_on(&["deadzone", "saturation"], Sensors::Full, 2));
+    assert!(
+        learned.steps.iter().all(|s| s.together_with.is_some()),
+        "{:?}",
+        learned.steps
+    );
+}
