@@ -27,6 +27,14 @@ fn named_first(diagnosis: &Diagnosis, hidden: Hidden) -> Result<(), String> {
     common::named_first_within(diagnosis, hidden, 0.25)
 }
 
+/// Without pressures, nothing significant on the plant of `seed` with no
+/// effect hidden, every `every`-th reading kept.
+fn names_nothing(seed: u64, every: usize) {
+    let clean = diagnosed(seed, None, Sensors::Motion, every);
+    let named = common::significant(&clean);
+    assert!(named.is_empty(), "seed {seed}, nothing hidden: {named:?}");
+}
+
 /// Without pressures, a torque (friction, a load) is seen only through the
 /// data sheet's displacement and oil stiffness, which the foreign plants
 /// miss by up to 40 %: its size is known no better than they are.
@@ -129,12 +137,7 @@ fn at_fifty_hertz_a_deadzone_is_named_and_nothing_else() {
     };
     let diagnosis = diagnosed(22, Some(hidden), Sensors::Motion, 20);
     named_first(&diagnosis, hidden).unwrap_or_else(|e| panic!("{e}"));
-    let clean = diagnosed(12, None, Sensors::Motion, 20);
-    assert!(
-        common::significant(&clean).is_empty(),
-        "{:?}",
-        common::significant(&clean)
-    );
+    names_nothing(12, 20);
 }
 
 /// An axis driven by a measured torque: the mechanical part alone, every
@@ -176,12 +179,7 @@ fn without_pressures_a_delay_is_named_at_the_command_steps_bench_plants_1003009_
         let diagnosis = diagnosed(seed, Some(hidden), Sensors::Motion, 1);
         named_first(&diagnosis, hidden).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(diagnosis.candidates[0].test, "step_windows", "seed {seed}");
-        let clean = diagnosed(seed, None, Sensors::Motion, 1);
-        assert!(
-            common::significant(&clean).is_empty(),
-            "seed {seed} without a delay: {:?}",
-            common::significant(&clean)
-        );
+        names_nothing(seed, 1);
     }
 }
 
@@ -199,11 +197,6 @@ fn without_pressures_a_delay_is_named_on_plants_nobody_picked() {
         .count();
     assert!(named >= 2, "named on {named} of 4");
     for seed in seeds {
-        let clean = diagnosed(seed, None, Sensors::Motion, 1);
-        assert!(
-            common::significant(&clean).is_empty(),
-            "seed {seed} without a delay: {:?}",
-            common::significant(&clean)
-        );
+        names_nothing(seed, 1);
     }
 }

@@ -75,6 +75,15 @@ fn both_found_in((learned, case, plant): (Learned, Vec<Hidden>, String)) -> Lear
     learned
 }
 
+/// Every step the loop added was one of a pair.
+fn added_together(learned: &Learned) {
+    assert!(
+        learned.steps.iter().all(|s| s.together_with.is_some()),
+        "{:?}",
+        learned.steps
+    );
+}
+
 #[test]
 fn a_dead_band_and_an_asymmetric_valve() {
     both_found(&["deadzone", "asymmetric_gain"]);
@@ -153,12 +162,10 @@ fn coulomb_friction_and_a_gravity_load_too_weak_alone_are_added_together_bench_p
 /// near miss that passed, the two together are added as one step.
 #[test]
 fn a_dead_band_and_a_spool_stop_from_the_angle_alone_are_added_together() {
-    let learned = both_found_in(learned_with(&["deadzone", "saturation"], Sensors::Motion));
-    assert!(
-        learned.steps.iter().all(|s| s.together_with.is_some()),
-        "{:?}",
-        learned.steps
-    );
+    added_together(&both_found_in(learned_with(
+        &["deadzone", "saturation"],
+        Sensors::Motion,
+    )));
 }
 
 /// A dead band whose segments passed (t 4.1 against 3.7) while it took the
@@ -167,12 +174,11 @@ fn a_dead_band_and_a_spool_stop_from_the_angle_alone_are_added_together() {
 /// stop both are found.
 #[test]
 fn a_dead_band_that_fits_worse_alone_is_paired_with_a_spool_stop_bench_plant_2() {
-    let learned = both_found_in(learned_on(&["deadzone", "saturation"], Sensors::Full, 2));
-    assert!(
-        learned.steps.iter().all(|s| s.together_with.is_some()),
-        "{:?}",
-        learned.steps
-    );
+    added_together(&both_found_in(learned_on(
+        &["deadzone", "saturation"],
+        Sensors::Full,
+        2,
+    )));
 }
 
 /// A delay beside an asymmetric valve, whose fit from the model stayed
