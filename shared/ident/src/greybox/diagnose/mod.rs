@@ -23,7 +23,7 @@ use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, Normal, StudentsT};
 
 use super::fit::{fit_baseline, fit_effect, part_loss, refit_part, FitOptions, Uncertainty};
-use super::{Model, ModelError, Part, Prediction, Signals};
+use super::{Model, ModelError, Part, Prediction, Signals, STEP_DELAY_MIN_S};
 
 mod pairs;
 mod plausibility;

@@ -25,13 +25,6 @@ const MIN_STEPS: usize = 3;
 /// The longest sample period at which a step's first milliseconds show.
 const MAX_STEP_DT_S: f64 = 0.002;
 
-/// The shortest delay the steps may name, s. A first-order lag of τ looks
-/// like a delay of τ at a step, and the pressures alone cannot tell them
-/// apart: on clean plants the candidate fits the transducers' 1–3.5 ms lag
-/// as a delay, which the motion's guard does not always catch. Shorter
-/// delays are left to the segment tests.
-pub(super) const STEP_DELAY_MIN_S: f64 = 0.005;
-
 /// The share of the delay's α the step test takes; the segment tests share
 /// the rest.
 pub(super) const STEP_ALPHA_SHARE: f64 = 0.25;
@@ -42,7 +35,7 @@ pub(super) struct StepWindows {
     part: Part,
     windows: Vec<Range<usize>>,
     /// The windows' starts and each stretch's first sample, ascending:
-    /// where a prediction takes the measured pressures.
+    /// where a prediction starts from the measured state.
     starts: Vec<usize>,
 }
 

@@ -43,8 +43,8 @@ pub(super) fn from_the_data_sheet(
     // fitted at 13 ms, the valve at 0.64 × its frequency and 0.23 × its
     // damping, the pressures' NRMSE 0.085); from the data sheet's valve it
     // found 22 ms and the valve within 1 % (NRMSE 0.044).
-    let delay_beside_a_lag =
-        kind == EffectKind::TimeDelay && fitted.working.value(Knob::Effect(kind, "delay_s")) >= DELAY_BESIDE_A_LAG_S;
+    let delay_beside_a_lag = kind == EffectKind::TimeDelay
+        && fitted.working.value(Knob::Effect(kind, "delay_s")) >= crate::greybox::STEP_DELAY_MIN_S;
     if !unexplained && !delay_beside_a_lag {
         return None;
     }
@@ -87,8 +87,3 @@ pub(super) fn from_the_data_sheet(
         .then(|| fit_part(part, &screened, knobs, signals, estimation, options, loss).ok())
         .flatten()
 }
-
-/// The shortest fitted delay that is also fitted from the data sheet's
-/// valve, s: the shortest the command's steps may name
-/// (`diagnose::steps`); a shorter one is the transducers' lag or nothing.
-const DELAY_BESIDE_A_LAG_S: f64 = 0.005;
