@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::diagnose::{diagnose_with, together, Diagnosis, Together};
-use super::{FitOptions, Model, ModelError, Progress, Signals};
+use super::{FitOptions, HistoryStep, Model, ModelError, Progress, Signals};
 
 /// One effect added: what it did and the test that decided.
 #[derive(Debug, Clone, Serialize)]
@@ -102,19 +102,16 @@ pub fn learn(
         let Some(first) = first else {
             if steps.len() + 2 <= max_steps {
                 if let Some(pair) = together(signals, &diagnosis, options)? {
-                    for step in pair_steps(&pair) {
+                    let added = pair_steps(&pair);
+                    let mut next = pair.model;
+                    // The history's last two entries are the pair's, in order.
+                    let n = next.history.len();
+                    for (entry, step) in next.history[n.saturating_sub(2)..].iter_mut().zip(&added) {
+                        step.record_in(entry);
+                    }
+                    for step in added {
                         progress.added(steps.len(), &step);
                         steps.push(step);
-                    }
-                    let mut next = pair.model;
-                    // The history's last two entries are the pair's.
-                    let n = next.history.len();
-                    let others = [&pair.second, &pair.first];
-                    for (entry, other) in next.history[n.saturating_sub(2)..].iter_mut().zip(others) {
-                        entry.test = Some(pair.test.to_owned());
-                        entry.statistic = Some(pair.statistic);
-                        entry.threshold = Some(pair.threshold);
-                        entry.together_with = Some(other.clone());
                     }
                     model = Some(next);
                     continue;
@@ -160,9 +157,7 @@ pub fn learn(
             together_with: None,
         };
         if let Some(last) = next.history.last_mut() {
-            last.test = Some(step.test.to_owned());
-            last.statistic = Some(step.statistic);
-            last.threshold = Some(step.threshold);
+            step.record_in(last);
         }
         progress.added(steps.len(), &step);
         steps.push(step);
@@ -176,6 +171,17 @@ pub fn learn(
             });
         }
         model = Some(next);
+    }
+}
+
+impl LearnStep {
+    /// The test that decided this step, and the effect added with it, in
+    /// its entry of the model file's history.
+    fn record_in(&self, entry: &mut HistoryStep) {
+        entry.test = Some(self.test.to_owned());
+        entry.statistic = Some(self.statistic);
+        entry.threshold = Some(self.threshold);
+        entry.together_with = self.together_with.clone();
     }
 }
 

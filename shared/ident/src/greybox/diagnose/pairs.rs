@@ -29,13 +29,17 @@ pub struct Together {
     pub threshold: f64,
 }
 
-/// A near miss worth pairing: it lowers its output's error, stands in for
-/// nothing the catalog lacks, and is not the encoder's staircase (which
-/// its readings show or do not, whatever else is missing).
+/// A miss that may be one of a pair: it stands in for nothing the catalog
+/// lacks, and is not the encoder's staircase (which its readings show or
+/// do not, whatever else is missing).
+fn a_miss_to_pair(candidate: &Candidate) -> bool {
+    !candidate.significant && candidate.stands_in.is_none() && candidate.effect != EffectKind::Quantization.name()
+}
+
+/// A near miss worth pairing with the other near misses: it lowers its
+/// output's error.
 fn pairable(candidate: &Candidate) -> bool {
-    !candidate.significant
-        && candidate.stands_in.is_none()
-        && candidate.effect != EffectKind::Quantization.name()
+    a_miss_to_pair(candidate)
         && candidate.statistic > 0.0
         && candidate.validation_nrmse_after < candidate.validation_nrmse_before
 }
@@ -43,9 +47,7 @@ fn pairable(candidate: &Candidate) -> bool {
 /// A miss whose segment test passed though its output's validation error
 /// rose: it took something in most segments and lost more elsewhere.
 fn segments_passed_error_rose(candidate: &Candidate) -> bool {
-    !candidate.significant
-        && candidate.stands_in.is_none()
-        && candidate.effect != EffectKind::Quantization.name()
+    a_miss_to_pair(candidate)
         && candidate.statistic >= candidate.threshold
         && candidate.validation_nrmse_after >= candidate.validation_nrmse_before
 }
@@ -95,12 +97,10 @@ pub fn together(signals: &Signals, diagnosis: &Diagnosis, options: FitOptions) -
     // band alone took the pressures' NRMSE 0.52 → 0.76. It is paired with
     // each other effect of its part, whatever that one did alone.
     for first in diagnosis.candidates.iter().filter(|c| segments_passed_error_rose(c)) {
-        let others = diagnosis.candidates.iter().filter(|c| {
-            c.part == first.part
-                && c.effect != first.effect
-                && c.stands_in.is_none()
-                && c.effect != EffectKind::Quantization.name()
-        });
+        let others = diagnosis
+            .candidates
+            .iter()
+            .filter(|c| c.part == first.part && c.effect != first.effect && a_miss_to_pair(c));
         for second in others {
             let known = tried.iter().any(|(a, b)| {
                 (a.effect == first.effect && b.effect == second.effect)
