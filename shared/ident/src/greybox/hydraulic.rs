@@ -75,6 +75,8 @@ pub(crate) fn predict_hydraulic_from(
     let mut spool = [0.0_f64; 2];
     let mut pressures = [signals.p_a[0], signals.p_b[0]];
     let mut next_start = 0;
+    let play = effects.backlash.map_or(0.0, |b| b.width);
+    let actuator_velocity = |k: usize| signals.velocity[k] + play * signals.play_crossing[k];
     for k in 0..range.end {
         if next_start < segment_starts.len() && k == segment_starts[next_start] {
             pressures = [signals.p_a[k], signals.p_b[k]];
@@ -91,7 +93,7 @@ pub(crate) fn predict_hydraulic_from(
             break;
         }
         let input = delayed_command(signals, effects, k);
-        let (v0, v1) = (signals.velocity[k], signals.velocity[k + 1]);
+        let (v0, v1) = (actuator_velocity(k), actuator_velocity(k + 1));
         // Before the range only the spool matters.
         let in_segment = k + 1 >= range.start;
         let x = [spool[0], spool[1], pressures[0], pressures[1]];

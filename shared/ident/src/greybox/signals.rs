@@ -47,6 +47,11 @@ pub struct Signals {
     /// (by the smoothed velocity): +1, −1, or 0 before the first. The
     /// mechanical part reads where a load sits in a play from it.
     pub last_motion: Vec<f64>,
+    /// Per unit of a play between the actuator and the encoder, how much
+    /// faster than the encoder's reading the actuator moves: at each
+    /// reversal it crosses the play while the reading holds
+    /// ([`play_crossing`]), rad/s per rad of play.
+    pub play_crossing: Vec<f64>,
     /// Where the record resumes after readings left out (a sensor without
     /// a value, rows missing from a file): the first sample of each
     /// stretch after the first, ascending. The shooting segments restart
@@ -147,6 +152,7 @@ impl Signals {
         let (theta_smooth, velocity) = per_stretch(&breaks, &theta, |x| local_line(x, dt, half_width));
         let acceleration = per_stretch(&breaks, &velocity, |x| local_line(x, dt, half_width)).1;
         let last_motion = last_motion(&velocity);
+        let play_crossing = play_crossing(&velocity, &last_motion, dt);
         Ok(Self {
             source,
             dt,
@@ -160,6 +166,7 @@ impl Signals {
             velocity,
             acceleration,
             last_motion,
+            play_crossing,
             breaks,
             has_command,
             has_pressures,
@@ -318,8 +325,7 @@ fn per_stretch(breaks: &[usize], x: &[f64], smooth: impl Fn(&[f64]) -> (Vec<f64>
 /// the last smoothed velocity faster than a tenth of the record's RMS
 /// (motion, not noise).
 fn last_motion(velocity: &[f64]) -> Vec<f64> {
-    let mean_square = velocity.iter().map(|v| v * v).sum::<f64>() / velocity.len().max(1) as f64;
-    let moving = 0.1 * mean_square.sqrt();
+    let moving = moving_speed(velocity);
     let mut sign = 0.0;
     velocity
         .iter()
@@ -330,6 +336,43 @@ fn last_motion(velocity: &[f64]) -> Vec<f64> {
             sign
         })
         .collect()
+}
+
+/// The speed above which the reading moves rather than shakes with noise:
+/// a tenth of the record's RMS velocity.
+fn moving_speed(velocity: &[f64]) -> f64 {
+    let mean_square = velocity.iter().map(|v| v * v).sum::<f64>() / velocity.len().max(1) as f64;
+    0.1 * mean_square.sqrt()
+}
+
+/// Per unit of play, the actuator's speed beyond the reading's while it
+/// crosses a play. The encoder's side stops when the actuator turns back
+/// and moves again once the actuator has crossed the whole play, so the
+/// crossing fills the reading's stand-still between the last motion one
+/// way and the first the other: a ramp, the actuator speeding up from
+/// rest until it meets the load. The chambers' flow follows the actuator:
+/// taken from the reading's motion alone, the crossing is flow the
+/// pressures' model never sees, and beside a play a 20 ms delay fitted at
+/// 15 ms or none, the pressures at NRMSE 0.13–0.23 (0.08–0.13 with it).
+fn play_crossing(velocity: &[f64], last_motion: &[f64], dt: f64) -> Vec<f64> {
+    let moving = moving_speed(velocity);
+    let mut crossing = vec![0.0; velocity.len()];
+    let mut last_moving: Option<usize> = None;
+    for k in 1..velocity.len() {
+        let (before, now) = (last_motion[k - 1], last_motion[k]);
+        if before != 0.0 && now != before {
+            if let Some(end) = last_moving {
+                let samples = (k - end) as f64;
+                for (j, c) in crossing[end + 1..=k].iter_mut().enumerate() {
+                    *c = now * 2.0 * (j + 1) as f64 / (samples * (samples + 1.0) * dt);
+                }
+            }
+        }
+        if velocity[k].abs() > moving {
+            last_moving = Some(k);
+        }
+    }
+    crossing
 }
 
 /// The slope of `x` by the same local line as the velocity's.
@@ -586,6 +629,28 @@ mod tests {
         assert!(signs[..10].iter().all(|&s| s == 0.0), "{signs:?}");
         assert!(signs[10..30].iter().all(|&s| s == 1.0), "{signs:?}");
         assert!(signs[30..].iter().all(|&s| s == -1.0), "{signs:?}");
+    }
+
+    #[test]
+    fn a_play_is_crossed_while_the_reading_stands_still() {
+        // Forward, still for 10 samples, then back, then forward at once.
+        let dt = 1e-3;
+        let mut velocity = vec![1.0; 10];
+        velocity.extend([0.0; 10]);
+        velocity.extend([-1.0; 10]);
+        velocity.extend([1.0; 10]);
+        let crossing = play_crossing(&velocity, &last_motion(&velocity), dt);
+        // Before the first reversal, and while the reading moves one way:
+        // nothing beyond the reading's own motion.
+        assert!(crossing[..10].iter().all(|&c| c == 0.0), "{crossing:?}");
+        assert!(crossing[21..30].iter().all(|&c| c == 0.0), "{crossing:?}");
+        // The stand-still and the first sample back cross the whole play
+        // backwards, the actuator speeding up until it meets the load.
+        let crossed: f64 = crossing[10..21].iter().sum::<f64>() * dt;
+        assert!((crossed + 1.0).abs() < 1e-12, "{crossed}");
+        assert!(crossing[10..21].windows(2).all(|w| w[1] < w[0]), "{crossing:?}");
+        // A reversal with no stand-still crosses the play in one sample.
+        assert!((crossing[30] * dt - 1.0).abs() < 1e-12, "{crossing:?}");
     }
 
     #[test]
