@@ -204,10 +204,13 @@ fn coulomb_friction_beside_a_spool_stop_is_fitted_from_the_stops_fit_too() {
 }
 
 /// A delay beside a play: the chambers' flow follows the actuator, which
-/// crosses the play at each reversal while the encoder holds. Taken from
-/// the encoder's motion alone, the delay fitted at 15 ms of 20 (the
-/// pressures' NRMSE 0.13); with the crossing, within 25 %.
+/// crosses the play at each reversal while the encoder holds, pushed by
+/// the pressures. Taken from the encoder's motion alone, the delay fitted
+/// at 15 ms of 20 on the second plant and not at all on the first (the
+/// pressures' NRMSE 0.13–0.23); with the crossing, within 25 % on both.
 #[test]
-fn a_delay_beside_a_play_sees_the_actuator_cross_it_bench_plant_2() {
-    both_found_in(learned_on(&["time_delay", "backlash"], Sensors::Full, 2));
+fn a_delay_beside_a_play_sees_the_actuator_cross_it() {
+    for plant in [1, 2] {
+        both_found_in(learned_on(&["time_delay", "backlash"], Sensors::Full, plant));
+    }
 }

@@ -152,7 +152,8 @@ impl Signals {
         let (theta_smooth, velocity) = per_stretch(&breaks, &theta, |x| local_line(x, dt, half_width));
         let acceleration = per_stretch(&breaks, &velocity, |x| local_line(x, dt, half_width)).1;
         let last_motion = last_motion(&velocity);
-        let play_crossing = play_crossing(&velocity, &last_motion, dt);
+        let drive: Option<Vec<f64>> = has_pressures.then(|| p_a.iter().zip(&p_b).map(|(a, b)| a - b).collect());
+        let play_crossing = play_crossing(&velocity, &last_motion, drive.as_deref(), dt);
         Ok(Self {
             source,
             dt,
@@ -349,12 +350,15 @@ fn moving_speed(velocity: &[f64]) -> f64 {
 /// crosses a play. The encoder's side stops when the actuator turns back
 /// and moves again once the actuator has crossed the whole play, so the
 /// crossing fills the reading's stand-still between the last motion one
-/// way and the first the other: a ramp, the actuator speeding up from
-/// rest until it meets the load. The chambers' flow follows the actuator:
-/// taken from the reading's motion alone, the crossing is flow the
-/// pressures' model never sees, and beside a play a 20 ms delay fitted at
-/// 15 ms or none, the pressures at NRMSE 0.13–0.23 (0.08–0.13 with it).
-fn play_crossing(velocity: &[f64], last_motion: &[f64], dt: f64) -> Vec<f64> {
+/// way and the first the other. Over it the actuator speeds up from rest
+/// as the chambers push it: its speed follows the pressure difference's
+/// impulse since the stand-still began (`drive`, p_a − p_b), scaled to
+/// cross the whole play; without pressures, or where they never push the
+/// new way, a ramp. The chambers' flow follows the actuator: taken from
+/// the reading's motion alone, the crossing is flow the pressures' model
+/// never sees, and beside a play a 20 ms delay fitted at 15 ms or none,
+/// the pressures at NRMSE 0.13–0.23 (0.08–0.13 with it).
+fn play_crossing(velocity: &[f64], last_motion: &[f64], drive: Option<&[f64]>, dt: f64) -> Vec<f64> {
     let moving = moving_speed(velocity);
     let mut crossing = vec![0.0; velocity.len()];
     let mut last_moving: Option<usize> = None;
@@ -362,9 +366,25 @@ fn play_crossing(velocity: &[f64], last_motion: &[f64], dt: f64) -> Vec<f64> {
         let (before, now) = (last_motion[k - 1], last_motion[k]);
         if before != 0.0 && now != before {
             if let Some(end) = last_moving {
-                let samples = (k - end) as f64;
-                for (j, c) in crossing[end + 1..=k].iter_mut().enumerate() {
-                    *c = now * 2.0 * (j + 1) as f64 / (samples * (samples + 1.0) * dt);
+                let dwell = &mut crossing[end + 1..=k];
+                let samples = dwell.len() as f64;
+                let mut impulse = 0.0;
+                let mut total = 0.0;
+                if let Some(drive) = drive {
+                    for (c, d) in dwell.iter_mut().zip(&drive[end + 1..=k]) {
+                        impulse += now * d;
+                        *c = impulse.max(0.0);
+                        total += *c;
+                    }
+                }
+                if total > 0.0 && total.is_finite() {
+                    for c in dwell.iter_mut() {
+                        *c *= now / (total * dt);
+                    }
+                } else {
+                    for (j, c) in dwell.iter_mut().enumerate() {
+                        *c = now * 2.0 * (j + 1) as f64 / (samples * (samples + 1.0) * dt);
+                    }
                 }
             }
         }
@@ -639,7 +659,7 @@ mod tests {
         velocity.extend([0.0; 10]);
         velocity.extend([-1.0; 10]);
         velocity.extend([1.0; 10]);
-        let crossing = play_crossing(&velocity, &last_motion(&velocity), dt);
+        let crossing = play_crossing(&velocity, &last_motion(&velocity), None, dt);
         // Before the first reversal, and while the reading moves one way:
         // nothing beyond the reading's own motion.
         assert!(crossing[..10].iter().all(|&c| c == 0.0), "{crossing:?}");
@@ -651,6 +671,14 @@ mod tests {
         assert!(crossing[10..21].windows(2).all(|w| w[1] < w[0]), "{crossing:?}");
         // A reversal with no stand-still crosses the play in one sample.
         assert!((crossing[30] * dt - 1.0).abs() < 1e-12, "{crossing:?}");
+        // With pressures, the actuator starts once the chambers push it
+        // back: here from the stand-still's sixth sample.
+        let drive: Vec<f64> = (0..velocity.len()).map(|k| if k >= 15 { -1e5 } else { 0.0 }).collect();
+        let pushed = play_crossing(&velocity, &last_motion(&velocity), Some(&drive), dt);
+        assert!(pushed[10..15].iter().all(|&c| c == 0.0), "{pushed:?}");
+        assert!(pushed[15..21].windows(2).all(|w| w[1] < w[0]), "{pushed:?}");
+        let crossed: f64 = pushed[10..21].iter().sum::<f64>() * dt;
+        assert!((crossed + 1.0).abs() < 1e-12, "{crossed}");
     }
 
     #[test]
