@@ -191,10 +191,10 @@ fn a_delay_whose_valve_took_part_of_it_is_fitted_from_the_data_sheet_bench_plant
 }
 
 /// From the angle alone, Coulomb friction beside a spool stop: alone the
-/// friction fitted 19 N·m of 60 (the body's viscous friction at 8 × its
-/// own took the rest), and the stop added to that left the angle's NRMSE
-/// at 0.030; the pair is also fitted from the stop's fit alone, where the
-/// friction comes out within 25 %.
+/// friction fitted 15 N·m of 60 (the body's viscous friction at 7 × the
+/// data sheet's took the rest), and the stop added to that left the
+/// angle's NRMSE at 0.030; the pair is also fitted from the stop's fit
+/// alone, where the friction comes out within 25 %.
 #[test]
 fn coulomb_friction_beside_a_spool_stop_is_fitted_from_the_stops_fit_too() {
     added_together(&both_found_in(learned_with(

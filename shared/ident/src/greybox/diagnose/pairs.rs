@@ -157,10 +157,11 @@ fn judge_pair(
     // From each one's fit alone, the other added: the lower estimation
     // cost stays. Either alone may settle where the other's error is taken
     // up by the body or the valve, and the other's fit from there stays in
-    // that valley: beside a spool stop, Coulomb friction alone fitted 19 N·m
-    // of 60 (the viscous friction at 8 × its own), and the stop added to it
-    // left the angle's NRMSE at 0.030; from the stop alone, the friction
-    // fitted 51 N·m and the NRMSE 0.022.
+    // that valley: beside a spool stop, Coulomb friction alone fitted 15 N·m
+    // of 60 (the viscous friction at 7 × the data sheet's), and the stop
+    // added to it left the friction at 37 N·m and the angle's NRMSE at
+    // 0.030; from the stop alone, the friction fitted 55 N·m and the NRMSE
+    // 0.021.
     let mut fits = Vec::with_capacity(2);
     for (alone, added) in [(first, second_kind), (second, first_kind)] {
         let Some(with_alone) = diagnosis.fitted.get(&alone.effect) else {
