@@ -194,13 +194,18 @@ fn a_delay_whose_valve_took_part_of_it_is_fitted_from_the_data_sheet_bench_plant
 /// friction fitted 15 N·m of 60 (the body's viscous friction at 7 × the
 /// data sheet's took the rest), and the stop added to that left the
 /// angle's NRMSE at 0.030; the pair is also fitted from the stop's fit
-/// alone, where the friction comes out within 25 %.
+/// alone, where the friction comes out within 25 %. The steps say what
+/// the model's history says: the stop first, then the friction fitted
+/// beside it, each step's error starting where the last one's ended.
 #[test]
 fn coulomb_friction_beside_a_spool_stop_is_fitted_from_the_stops_fit_too() {
-    added_together(&both_found_in(learned_with(
-        &["saturation", "coulomb_friction"],
-        Sensors::Motion,
-    )));
+    let learned = both_found_in(learned_with(&["saturation", "coulomb_friction"], Sensors::Motion));
+    added_together(&learned);
+    let steps: Vec<&str> = learned.steps.iter().map(|s| s.effect.as_str()).collect();
+    let history: Vec<&str> = learned.model.history.iter().map(|h| h.step.as_str()).collect();
+    assert_eq!(steps, ["saturation", "coulomb_friction"]);
+    assert_eq!(history, ["baseline", "saturation", "coulomb_friction"]);
+    assert_eq!(learned.steps[0].nrmse_after, learned.steps[1].nrmse_before);
 }
 
 /// A delay beside a play: the chambers' flow follows the actuator, which

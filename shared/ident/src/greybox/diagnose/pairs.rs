@@ -17,8 +17,9 @@ pub struct Together {
     pub model: Model,
     /// The output both were judged on.
     pub output: String,
-    /// The nearer miss first: its name and the output's validation NRMSE
-    /// before it, with it alone, and with both.
+    /// The one the pair was fitted from first (the model's history adds it
+    /// first): its name and the output's validation NRMSE before it, with
+    /// it alone, and with both.
     pub first: String,
     pub second: String,
     pub nrmse_before: f64,
@@ -168,14 +169,15 @@ fn judge_pair(
             continue;
         };
         match fit_effect(signals, with_alone, added, options, loss) {
-            Ok(fitted) => fits.push(fitted),
+            Ok((model, fit)) => fits.push((model, fit.cost, alone)),
             Err(ModelError::Fit(_)) => {}
             Err(other) => return Err(other),
         }
     }
-    let Some((both, _)) = fits.into_iter().min_by(|a, b| a.1.cost.total_cmp(&b.1.cost)) else {
+    let Some((both, _, from)) = fits.into_iter().min_by(|a, b| a.1.total_cmp(&b.1)) else {
         return Ok(None);
     };
+    let then = if from.effect == first.effect { second } else { first };
     let validation = signals.split(options.estimation_fraction)..signals.len();
     let before = crate::greybox::predict(&base.plant, &base.effects()?, signals, validation.clone());
     let after = crate::greybox::predict(&both.plant, &both.effects()?, signals, validation.clone());
@@ -202,10 +204,10 @@ fn judge_pair(
     Ok(Some(Together {
         model: both,
         output: output.to_owned(),
-        first: first.effect.clone(),
-        second: second.effect.clone(),
-        nrmse_before: first.validation_nrmse_before,
-        nrmse_first_alone: first.validation_nrmse_after,
+        first: from.effect.clone(),
+        second: then.effect.clone(),
+        nrmse_before: from.validation_nrmse_before,
+        nrmse_first_alone: from.validation_nrmse_after,
         nrmse_after,
         test: test.kind.name(),
         statistic: test.statistic,
